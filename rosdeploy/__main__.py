@@ -1,0 +1,3 @@
+from rosdeploy.cli import main
+
+raise SystemExit(main())

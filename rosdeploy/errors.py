@@ -1,0 +1,102 @@
+"""One error root for everything rosdeploy reports to a user.
+
+Every error carries the exit code the CLI returns for it, so the CLI never has
+to guess which kind of failure it is looking at.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable
+
+EXIT_OK = 0
+EXIT_INTERNAL = 1      # a bug in rosdeploy: traceback goes to the run log
+EXIT_INPUT = 2         # bad inventory, fleet file, template, vault, usage: nothing touched
+EXIT_PARTIAL = 3       # some robots failed, rolled back or were unreachable
+EXIT_ABORTED = 4       # a rollout stopped on max_fail (fleet-level rollback may have run)
+EXIT_INTERRUPTED = 130
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with the user's input, located as precisely as we can."""
+
+    file: str
+    line: int | None
+    key: str
+    message: str
+    severity: str = "error"  # "error" | "warning"
+    rule: str = ""           # check rule id, e.g. "image-unversioned"
+
+    def __str__(self) -> str:
+        where = f"{self.file}:{self.line}" if self.line else self.file
+        key = f" {self.key}:" if self.key else ""
+        return f"{where}:{key} {self.message}"
+
+
+class RosdeployError(Exception):
+    exit_code = EXIT_INTERNAL
+
+
+class InputError(RosdeployError):
+    """Anything wrong with what the user wrote. Raised before any robot is touched."""
+
+    exit_code = EXIT_INPUT
+
+    def __init__(self, problems: Iterable[Problem] | str) -> None:
+        if isinstance(problems, str):
+            problems = [Problem("", None, "", problems)]
+        self.problems: tuple[Problem, ...] = tuple(problems)
+        super().__init__("\n".join(str(p) for p in self.problems))
+
+
+class InventoryError(InputError):
+    pass
+
+
+class FleetSpecError(InputError):
+    pass
+
+
+class RenderError(InputError):
+    pass
+
+
+class VaultError(InputError):
+    pass
+
+
+class RemoteError(RosdeployError):
+    """Something went wrong on or on the way to one robot."""
+
+    exit_code = EXIT_PARTIAL
+
+    def __init__(self, host: str, message: str) -> None:
+        self.host = host
+        super().__init__(f"{host}: {message}")
+
+
+class ConnectError(RemoteError):
+    pass
+
+
+class HostKeyError(ConnectError):
+    pass
+
+
+class CommandFailed(RemoteError):
+    def __init__(self, host: str, result: "object", what: str = "") -> None:
+        self.result = result
+        detail = getattr(result, "stderr", "") or getattr(result, "stdout", "")
+        tail = "\n".join(str(detail).strip().splitlines()[-5:])
+        code = getattr(result, "exited", "?")
+        super().__init__(host, f"{what or 'command'} failed (exit {code}): {tail}")
+
+
+class LockHeld(RemoteError):
+    pass
+
+
+class SimError(RosdeployError):
+    """The simulated fleet could not be brought up or down."""
+
+    exit_code = EXIT_PARTIAL

@@ -1,0 +1,191 @@
+"""The plain values that flow between rosdeploy's stages.
+
+    inventory.py -> Inventory/Host      fleet.py -> FleetSpec
+    render.py (Host, FleetSpec) -> RenderedRelease
+    deploy.py / rollout.py -> HostResult -> FleetResult
+
+Everything here is frozen: a stage can hand its output to many threads (one per
+robot) without anyone mutating it underneath the others.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Mapping
+
+
+def frozen_map(data: Mapping[str, Any] | None = None) -> Mapping[str, Any]:
+    return MappingProxyType(dict(data or {}))
+
+
+# --------------------------------------------------------------------- inventory
+
+@dataclass(frozen=True)
+class UdevDevice:
+    """A stable /dev/robot/<symlink> name for a USB device, from vendor/product id."""
+
+    symlink: str            # e.g. "robot/motor_controller" (relative to /dev)
+    subsystem: str          # "tty", "video4linux", ...
+    vendor: str             # idVendor, 4 hex digits
+    product: str            # idProduct, 4 hex digits
+    serial: str | None = None
+    group: str | None = None   # e.g. "dialout"
+    mode: str = "0660"
+
+
+@dataclass(frozen=True)
+class Host:
+    """One robot, with every inventory var already merged by precedence."""
+
+    name: str
+    groups: tuple[str, ...]                 # every group it belongs to, ancestors included, "all" first
+    vars: Mapping[str, Any]                 # merged vars (secrets included, see secret_values)
+    address: str                            # ansible_host, or the name
+    port: int = 22                          # ansible_port
+    user: str | None = None                 # ansible_user (None: ssh config / local user)
+    key_file: str | None = None             # ansible_ssh_private_key_file
+    ros_domain_id: int = 0
+    devices: Mapping[str, str] = field(default_factory=frozen_map)   # logical name -> path on robot
+    udev: tuple[UdevDevice, ...] = ()
+    gpu: bool = False
+    network: str = "default"                # robots sharing a network must not share a domain ID
+    secret_values: frozenset[str] = frozenset()  # every value that came from a vault file
+    source: str = ""                        # "file:line" where the host was declared
+
+
+# ------------------------------------------------------------------------ fleet
+
+@dataclass(frozen=True)
+class Topic:
+    name: str                   # "/joint_states"
+    min_rate: float | None = None   # Hz; None: presence only
+
+
+@dataclass(frozen=True)
+class HealthCheck:
+    test: tuple[str, ...]       # compose form: ("CMD", ...) or ("CMD-SHELL", "...")
+    interval: str = "5s"
+    timeout: str = "3s"
+    retries: int = 3
+    start_period: str = "10s"
+
+
+@dataclass(frozen=True)
+class Service:
+    name: str
+    image: str                  # repository without registry or tag, e.g. "demo/driver"
+    tag: str                    # resolved tag (the release version unless the service pins one)
+    command: tuple[str, ...] | None = None
+    environment: Mapping[str, str] = field(default_factory=frozen_map)
+    secret_env: Mapping[str, str] = field(default_factory=frozen_map)  # ENV name -> host var holding the secret
+    devices: tuple[str, ...] = ()           # logical device names, resolved per robot
+    gpu: bool = False
+    restart: str = "unless-stopped"
+    memory: str | None = None               # mem_limit, e.g. "512m"
+    cpus: float | None = None
+    healthcheck: HealthCheck | None = None
+    depends_on: tuple[str, ...] = ()        # waits for service_healthy
+    topics: tuple[Topic, ...] = ()          # expected ROS topics (health gate)
+    user: str | None = None                 # container user; None: the image's own (should be non-root)
+    privileged: bool = False
+    allow_privileged: bool = False          # explicit opt-in the check rule wants
+    profiles: tuple[str, ...] = ()
+    extra: Mapping[str, Any] = field(default_factory=frozen_map)   # passed through to compose verbatim
+
+
+@dataclass(frozen=True)
+class HealthPolicy:
+    timeout: float = 90.0       # seconds for the whole gate
+    stable: float = 5.0         # seconds every container must stay up without restarting
+    interval: float = 1.0       # seconds between container polls
+    topic_window: float = 3.0   # seconds the ROS probe listens to measure rates
+    probe_service: str | None = None   # where the ROS probe runs; None: first service with topics
+
+
+@dataclass(frozen=True)
+class RolloutPolicy:
+    waves: tuple[int | str, ...] = ("100%",)   # ints are counts, "N%" are fractions of the targets
+    max_fail: int | str = 0                     # failures tolerated per wave
+    forks: int = 200
+    order_by: str | None = None                 # an inventory group prefix, e.g. "site_" → one site at a time
+    pause: float = 0.0                          # seconds between waves
+
+
+@dataclass(frozen=True)
+class RollbackPolicy:
+    auto: bool = True           # roll a robot back when its health gate fails
+    fleet: bool = True          # when a rollout stops, roll back robots of earlier waves too
+    keep_releases: int = 3
+
+
+@dataclass(frozen=True)
+class FleetSpec:
+    path: str                       # the fleet file
+    project: str                    # compose project name on every robot
+    inventory: str                  # resolved path of the inventory
+    registry: str                   # e.g. "registry.local:5000"
+    version: str
+    services: tuple[Service, ...]
+    rmw: str = "fastdds"            # "fastdds" | "cyclonedds"
+    network_mode: str = "host"      # "host" | "bridge"
+    shm_size: str = "512m"
+    log_max_size: str = "10m"
+    log_max_file: int = 3
+    templates: str | None = None    # a directory whose files override the built-in templates
+    deploy_root: str = "~/rosdeploy"  # on the robot; "~" is the SSH user's home
+    known_hosts: str | None = None  # None: ~/.ssh/known_hosts
+    ssh_config: str | None = None   # None: ~/.ssh/config if present
+    connect_timeout: float = 10.0
+    command_timeout: float = 600.0
+    min_free_disk_mb: int = 1024
+    health: HealthPolicy = HealthPolicy()
+    rollout: RolloutPolicy = RolloutPolicy()
+    rollback: RollbackPolicy = RollbackPolicy()
+    vars: Mapping[str, Any] = field(default_factory=frozen_map)  # extra template vars
+
+    def service(self, name: str) -> Service:
+        return next(s for s in self.services if s.name == name)
+
+    def image_ref(self, service: Service) -> str:
+        return f"{self.registry}/{service.image}:{service.tag}" if self.registry else f"{service.image}:{service.tag}"
+
+
+# ----------------------------------------------------------------------- render
+
+@dataclass(frozen=True)
+class RenderedFile:
+    name: str           # relative path inside the release dir, e.g. "compose.yml", ".env"
+    content: str
+    mode: int = 0o644   # .env (and anything holding a secret) is 0o600
+    secret: bool = False
+
+
+@dataclass(frozen=True)
+class RenderedRelease:
+    """Exactly what one robot receives. Deterministic: same inputs, same bytes, same digest."""
+
+    host: str
+    project: str
+    version: str
+    files: tuple[RenderedFile, ...]     # sorted by name
+    images: tuple[str, ...]             # full refs to pull, sorted, e.g. "registry.local:5000/demo/driver:1.0.0"
+    secret_values: frozenset[str] = frozenset()
+
+    @property
+    def digest(self) -> str:
+        """sha256 over names, modes and contents of every file: the release's identity."""
+        h = hashlib.sha256()
+        for f in self.files:
+            h.update(f"{f.name}\0{f.mode:o}\0".encode())
+            h.update(f.content.encode())
+            h.update(b"\0")
+        return h.hexdigest()
+
+    @property
+    def release_id(self) -> str:
+        """Directory name of the release on the robot."""
+        return f"{self.version}-{self.digest[:12]}"
+
+    def file(self, name: str) -> RenderedFile:
+        return next(f for f in self.files if f.name == name)

@@ -1,0 +1,74 @@
+"""Every print, table and prompt goes through here; nothing below the CLI prints.
+
+`Output` writes human text to a terminal and, with json=True, keeps stdout for
+one JSON document so CI can parse it while humans still see errors on stderr.
+Secrets registered with `mask()` are replaced in every line written.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import threading
+from typing import Any, Iterable, Sequence, TextIO
+
+MASK = "********"
+
+
+class Output:
+    def __init__(self, stdout: TextIO | None = None, stderr: TextIO | None = None,
+                 as_json: bool = False, color: bool | None = None) -> None:
+        self.stdout = stdout or sys.stdout
+        self.stderr = stderr or sys.stderr
+        self.as_json = as_json
+        tty = hasattr(self.stdout, "isatty") and self.stdout.isatty()
+        self.color = tty and not os.environ.get("NO_COLOR") if color is None else color
+        self.interactive = tty and not as_json
+        self._secrets: set[str] = set()
+        self._lock = threading.Lock()   # progress lines come from many robot threads
+
+    # --- secrets --------------------------------------------------------------
+    def mask(self, secrets: Iterable[str]) -> None:
+        # Short values would mask innocent text everywhere ("1", "on"); vault
+        # values that short are not secrets worth the name, and check warns about them.
+        self._secrets.update(s for s in secrets if s and len(s) >= 4)
+
+    def masked(self, text: str) -> str:
+        for secret in sorted(self._secrets, key=len, reverse=True):
+            text = text.replace(secret, MASK)
+        return text
+
+    # --- writing --------------------------------------------------------------
+    def line(self, text: str = "") -> None:
+        """Human text: stdout normally, stderr in --json mode (stdout is for the document)."""
+        stream = self.stderr if self.as_json else self.stdout
+        self._write(stream, text)
+
+    def error(self, text: str) -> None:
+        self._write(self.stderr, self.paint(text, "red"))
+
+    def warn(self, text: str) -> None:
+        self._write(self.stderr, self.paint(text, "yellow"))
+
+    def document(self, data: Any) -> None:
+        """The one JSON document of a --json run."""
+        self._write(self.stdout, json.dumps(data, indent=2, sort_keys=True, default=str))
+
+    def table(self, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
+        rows = [[str(c) for c in row] for row in rows]
+        widths = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(header)]
+        fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+        self.line(self.paint(fmt.format(*header).rstrip(), "bold"))
+        for row in rows:
+            self.line(fmt.format(*row).rstrip())
+
+    def paint(self, text: str, style: str) -> str:
+        if not self.color:
+            return text
+        codes = {"red": "31", "green": "32", "yellow": "33", "bold": "1", "dim": "2"}
+        return f"\033[{codes[style]}m{text}\033[0m"
+
+    def _write(self, stream: TextIO, text: str) -> None:
+        with self._lock:
+            stream.write(self.masked(text) + "\n")
+            stream.flush()
