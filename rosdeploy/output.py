@@ -72,3 +72,13 @@ class Output:
         with self._lock:
             stream.write(self.masked(text) + "\n")
             stream.flush()
+
+
+def confirm(out: Output, question: str) -> bool:
+    """Ask on the terminal; never called without one (callers check out.interactive)."""
+    out.stdout.write(f"{question} [y/N] ")
+    out.stdout.flush()
+    try:
+        return input().strip().lower() in ("y", "yes")
+    except EOFError:
+        return False

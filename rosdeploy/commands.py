@@ -1,0 +1,322 @@
+"""Pure builders of every command rosdeploy runs on a robot.
+
+Each remote step is a FIXED POSIX sh script; everything that comes from the
+inventory or the fleet file reaches it only as a positional argument, quoted
+with shlex.quote. No value is ever spliced into shell text, so a device path
+or a project name cannot become code whatever it contains. Tests assert the
+argv tuples built here; transport.py runs them.
+"""
+from __future__ import annotations
+
+import json
+import shlex
+from dataclasses import dataclass
+
+PROG = "rosdeploy"   # $0 of every script: shows up in `ps` on the robot
+
+
+@dataclass(frozen=True)
+class Command:
+    argv: tuple[str, ...]
+    stdin: bytes | None = None
+    timeout: float | None = None
+    label: str = ""          # what people see instead of the whole script
+
+    def wire(self) -> str:
+        """The exact string the remote login shell receives."""
+        return " ".join(shlex.quote(a) for a in self.argv)
+
+    def display(self) -> str:
+        return self.label or self.wire()
+
+
+def script(name: str, body: str, *args: str, stdin: bytes | None = None, timeout: float | None = None) -> Command:
+    return Command(("sh", "-c", body, PROG, *map(str, args)), stdin=stdin, timeout=timeout,
+                   label=f"{name} {' '.join(shlex.quote(str(a)) for a in args)}".strip())
+
+
+# Shared prologue: resolve "~/..." against the SSH user's home (the remote shell
+# cannot expand a quoted "~"), and define the project directory.
+_PROLOGUE = r'''
+set -u
+root=$1; project=$2; shift 2
+case $root in "~") root=$HOME;; "~/"*) root=$HOME/${root#"~/"};; esac
+dir=$root/$project
+'''
+
+# Compose command: v2 plugin or v1 binary, chosen by the caller after `state`.
+_COMPOSE = r'''
+compose() { if [ "$flavor" = v1 ]; then docker-compose "$@"; else docker compose "$@"; fi; }
+'''
+
+# One JSON line per container of the compose project; shared by `state` and the health poll.
+_INSPECT = r'''
+ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project" 2>/dev/null)
+[ -n "$ids" ] && docker inspect --format '{"name":{{json .Name}},"service":{{json (index .Config.Labels "com.docker.compose.service")}},"image":{{json .Config.Image}},"status":{{json .State.Status}},"health":{{if .State.Health}}{{json .State.Health.Status}}{{else}}null{{end}},"restarts":{{.RestartCount}},"started":{{json .State.StartedAt}},"workdir":{{json (index .Config.Labels "com.docker.compose.project.working_dir")}}}' $ids 2>/dev/null
+'''
+
+STATE_SCRIPT = _PROLOGUE + r'''
+want_compose=$1; want_gpu=$2; shift 2
+section() { printf '\n@@%s\n' "$1"; }
+section home; printf '%s\n' "$HOME"
+section dir; printf '%s\n' "$dir"
+section current; readlink "$dir/current" 2>/dev/null || true
+section manifest; cat "$dir/current/manifest.json" 2>/dev/null || true
+section lock; cat "$dir/.lock/owner" 2>/dev/null || true
+section releases; ls -1 "$dir/releases" 2>/dev/null | grep -v '^\.' || true
+section history; tail -n 50 "$dir/history.jsonl" 2>/dev/null || true
+section docker; docker version --format '{{.Server.Version}}' 2>&1 || true
+section compose
+if [ "$want_compose" != v1 ] && docker compose version --short >/dev/null 2>&1; then
+  printf 'v2 %s\n' "$(docker compose version --short)"
+elif command -v docker-compose >/dev/null 2>&1; then
+  printf 'v1 %s\n' "$(docker-compose version --short 2>/dev/null)"
+fi
+section containers
+''' + _INSPECT + r'''
+section disk
+p=$root; while [ ! -d "$p" ]; do p=$(dirname "$p"); done
+df -Pk "$p" 2>/dev/null | awk 'NR==2 {print int($4/1024)}'
+section gpu
+if [ "$want_gpu" = yes ]; then docker info --format '{{json .Runtimes}}' 2>/dev/null; fi
+section devices
+for d in "$@"; do [ -e "$d" ] || printf 'missing %s\n' "$d"; done
+section end
+'''
+
+
+def state(root: str, project: str, devices: tuple[str, ...] = (), compose: str = "auto",
+          gpu: bool = False) -> Command:
+    """Everything apply/plan/status need to know about a robot, in ONE round trip."""
+    return script("state", STATE_SCRIPT, root, project, compose, "yes" if gpu else "no", *devices)
+
+
+LOCK_SCRIPT = _PROLOGUE + r'''
+owner=$1; break_stale=$2
+mkdir -p "$dir/releases" "$dir/logs"
+if [ "$break_stale" = yes ]; then rm -rf "$dir/.lock"; fi
+if mkdir "$dir/.lock" 2>/dev/null; then
+  printf '%s\n' "$owner" > "$dir/.lock/owner"
+  echo locked
+else
+  printf 'held '; cat "$dir/.lock/owner" 2>/dev/null || echo '{}'
+  exit 3
+fi
+'''
+
+UNLOCK_SCRIPT = _PROLOGUE + r'''
+token=$1
+# Only remove a lock we hold: another run may have broken ours and taken it.
+if grep -qF "$token" "$dir/.lock/owner" 2>/dev/null; then rm -rf "$dir/.lock"; fi
+'''
+
+
+def lock(root: str, project: str, owner: dict, break_stale: bool = False) -> Command:
+    """mkdir is atomic on every filesystem: the lock is a directory holding its owner."""
+    return script("lock", LOCK_SCRIPT, root, project, json.dumps(owner, sort_keys=True),
+                  "yes" if break_stale else "no")
+
+
+def unlock(root: str, project: str, token: str) -> Command:
+    return script("unlock", UNLOCK_SCRIPT, root, project, token)
+
+
+UPLOAD_SCRIPT = _PROLOGUE + r'''
+release=$1
+tmp=$dir/releases/.tmp-$release-$$
+rm -rf "$tmp"; mkdir -p "$tmp"
+tar -x -f - -C "$tmp" --no-same-owner || { rm -rf "$tmp"; echo "upload incomplete: tar failed" >&2; exit 5; }
+chmod 0600 "$tmp/.env" 2>/dev/null || true
+# A release with this id holds the same files by construction (the id is their digest):
+# replace it whole so a half-written one from a cut connection never survives.
+rm -rf "$dir/releases/$release"
+mv "$tmp" "$dir/releases/$release"
+'''
+
+
+def upload(root: str, project: str, release: str, tarball: bytes) -> Command:
+    """Files go to a temporary dir and are renamed into place: never half-written."""
+    return script("upload", UPLOAD_SCRIPT, root, project, release, stdin=tarball)
+
+
+PULL_SCRIPT = r'''
+set -u
+# Pull what is missing, all images at once; keep going to report every failure.
+fail=0; pids=""
+for img in "$@"; do
+  if ! docker image inspect "$img" >/dev/null 2>&1; then
+    ( docker pull -q "$img" >/dev/null 2>/tmp/.rosdeploy-pull.$$.$(printf '%s' "$img" | cksum | cut -d' ' -f1) ) &
+    pids="$pids $!"
+  fi
+done
+for p in $pids; do wait "$p" || fail=1; done
+for img in "$@"; do
+  id=$(docker image inspect --format '{{.Id}} {{join .RepoDigests ","}}' "$img" 2>/dev/null)
+  if [ -n "$id" ]; then printf 'ok %s %s\n' "$img" "$id"
+  else
+    f=/tmp/.rosdeploy-pull.$$.$(printf '%s' "$img" | cksum | cut -d' ' -f1)
+    printf 'missing %s %s\n' "$img" "$(tr '\n' ' ' < "$f" 2>/dev/null)"
+  fi
+done
+rm -f /tmp/.rosdeploy-pull.$$.*
+exit $fail
+'''
+
+
+def pull(images: tuple[str, ...], timeout: float | None = None) -> Command:
+    """Pull by versioned tag while the old release keeps running; present images are not pulled again."""
+    return script("pull", PULL_SCRIPT, *images, timeout=timeout)
+
+
+UP_SCRIPT = _PROLOGUE + _COMPOSE + r'''
+release=$1; flavor=$2
+cd "$dir/releases/$release" || { echo "release $release is not on this robot" >&2; exit 4; }
+compose -p "$project" -f compose.yml up -d --remove-orphans 2>&1
+'''
+
+
+def up(root: str, project: str, release: str, flavor: str, timeout: float | None = None) -> Command:
+    """Switch the compose project to a release: the same project name, so containers are replaced."""
+    return script("up", UP_SCRIPT, root, project, release, flavor, timeout=timeout)
+
+
+DOWN_SCRIPT = _PROLOGUE + _COMPOSE + r'''
+release=$1; flavor=$2
+cd "$dir/releases/$release" && compose -p "$project" -f compose.yml down --remove-orphans 2>&1
+'''
+
+
+def down(root: str, project: str, release: str, flavor: str) -> Command:
+    return script("down", DOWN_SCRIPT, root, project, release, flavor)
+
+
+CONTAINERS_SCRIPT = r'''
+project=$1
+''' + _INSPECT + r'''
+exit 0
+'''
+
+
+def containers(project: str) -> Command:
+    """One line of JSON per container of the compose project (health gate poll)."""
+    return script("containers", CONTAINERS_SCRIPT, project)
+
+
+def logs(container: str, lines: int = 20) -> Command:
+    return Command(("docker", "logs", "--tail", str(lines), container), label=f"logs {container}")
+
+
+def ros_probe(container: str, probe_source: str, spec: dict, timeout: float) -> Command:
+    """Run rosdeploy's rclpy probe inside a running container of the release.
+
+    ROS images need their setup sourced; images with rclpy on the default path
+    (pip-installed ROS) work as they are.
+    """
+    body = r'''
+c=$1; src=$2; arg=$3
+exec docker exec "$c" sh -c 'for f in /opt/ros/*/setup.sh /ros_entrypoint_env.sh; do [ -f "$f" ] && . "$f" >/dev/null 2>&1; done; exec python3 -c "$0" "$1"' "$src" "$arg"
+'''
+    return script("ros-probe", body, container, probe_source, json.dumps(spec, sort_keys=True),
+                  timeout=timeout)
+
+
+FINISH_SCRIPT = _PROLOGUE + r'''
+release=$1; record=$2; keep=$3
+cd "$dir" || exit 4
+ln -sfn "releases/$release" current.tmp && mv -T current.tmp current
+# mtime = activation order, so pruning keeps the releases that last ran, not the last uploaded
+touch "releases/$release"
+printf '%s\n' "$record" >> history.jsonl
+# Prune: keep the newest $keep releases by mtime, never the current one; then the
+# images only pruned releases used (each release lists its images in images.txt).
+old_imgs=""
+for old in $(ls -1t releases | grep -v '^\.' | grep -vx "$release" | tail -n +"$keep"); do
+  old_imgs="$old_imgs $(cat "releases/$old/images.txt" 2>/dev/null)"
+  rm -rf "releases/$old"; printf 'pruned %s\n' "$old"
+done
+kept=$(cat releases/*/images.txt 2>/dev/null | sort -u)
+for img in $old_imgs; do
+  printf '%s\n' "$kept" | grep -qxF "$img" || { docker image rm "$img" >/dev/null 2>&1 && printf 'removed %s\n' "$img"; }
+done
+exit 0
+'''
+
+
+def finish(root: str, project: str, release: str, record: dict, keep: int) -> Command:
+    """Point `current` at the release (atomic rename), append history, prune old releases."""
+    return script("activate", FINISH_SCRIPT, root, project, release,
+                  json.dumps(record, sort_keys=True), str(keep))
+
+
+RECORD_SCRIPT = _PROLOGUE + r'''
+mkdir -p "$dir" && printf '%s\n' "$1" >> "$dir/history.jsonl"
+'''
+
+
+def record(root: str, project: str, entry: dict) -> Command:
+    """Append to history without switching anything (failed deploys, rollbacks that failed)."""
+    return script("history", RECORD_SCRIPT, root, project, json.dumps(entry, sort_keys=True))
+
+
+WRITE_SCRIPT = _PROLOGUE + r'''
+name=$1; release=$2
+tmp=$dir/releases/$release/.$name.tmp
+cat > "$tmp" && mv "$tmp" "$dir/releases/$release/$name"
+'''
+
+
+def write_file(root: str, project: str, release: str, name: str, content: bytes) -> Command:
+    return script("write", WRITE_SCRIPT, root, project, name, release, stdin=content)
+
+
+
+
+def parse_sections(stdout: str) -> dict[str, str]:
+    """Split `@@name` sections of the state script into a dict of their bodies."""
+    sections: dict[str, str] = {}
+    name = None
+    lines: list[str] = []
+    for line in stdout.splitlines():
+        if line.startswith("@@"):
+            if name is not None:
+                sections[name] = "\n".join(lines).strip()
+            name, lines = line[2:].strip(), []
+        elif name is not None:
+            lines.append(line)
+    return sections
+
+
+def parse_containers(text: str) -> tuple[dict, ...]:
+    out = []
+    for line in text.splitlines():
+        line = line.strip()
+        if line.startswith("{"):
+            try:
+                out.append(json.loads(line))
+            except ValueError:
+                continue
+    return tuple(sorted(out, key=lambda c: c.get("name", "")))
+
+
+RELEASE_FILES_SCRIPT = _PROLOGUE + r'''
+release=$1; shift
+n=0
+for name in "$@"; do
+  n=$((n + 1))
+  printf '\n@@file%s\n' "$n"; cat "$dir/releases/$release/$name" 2>/dev/null || printf '!!absent!!'
+done
+printf '\n@@images\n'
+while read -r img; do
+  [ -n "$img" ] && { docker image inspect "$img" >/dev/null 2>&1 && echo "present $img" || echo "missing $img"; }
+done
+printf '\n@@end\n'
+'''
+
+
+def release_files(root: str, project: str, release: str, names: tuple[str, ...], images: tuple[str, ...]) -> Command:
+    """The files of a kept release (for plan's diff) and which of `images` the robot lacks.
+
+    Images travel on stdin, one per line, so the argv stays one list of file names.
+    """
+    return script("read-release", RELEASE_FILES_SCRIPT, root, project, release, *names,
+                  stdin="".join(f"{i}\n" for i in images).encode())

@@ -1,0 +1,347 @@
+"""One robot: apply a release or roll back, leaving it either on the new release,
+healthy, or exactly as it was.
+
+    state (1 round trip) -> [up to date: done] -> preflight -> lock -> pull (old keeps running)
+    -> upload (temp dir + rename) -> up -> health gate -> activate | roll back -> unlock
+
+Every step is timed and kept in the HostResult; nothing here prints (progress
+goes to a callback the output layer renders).
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import tarfile
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Callable, Iterator
+
+from rosdeploy import __version__, commands
+from rosdeploy.errors import ConnectError, RemoteError
+from rosdeploy.health import Verdict, expected_services, wait_healthy
+from rosdeploy.model import FleetSpec, Host, RenderedRelease
+from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
+                               UNCHANGED, UNREACHABLE, HostResult, Step)
+from rosdeploy.robot import RobotState, parse_state, previous_release, release_for_version, unhealthy_services
+from rosdeploy.transport import SSHOptions, Transport, connect
+
+Progress = Callable[[str, str], None]   # (robot, what is happening)
+
+
+@dataclass(frozen=True)
+class RunContext:
+    """What every robot of one run shares. Frozen: many robot threads read it."""
+
+    spec: FleetSpec
+    ssh: SSHOptions
+    run_id: str
+    operator: str
+    progress: Progress = lambda host, msg: None
+    cancel: threading.Event = field(default_factory=threading.Event)
+    lock_wait: float = 0.0
+    break_lock: bool = False
+    connect: Callable[[Host, SSHOptions], Transport] = connect
+
+
+def now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+class RobotRun:
+    """The work on one robot during one run: its transport, its timed steps."""
+
+    def __init__(self, ctx: RunContext, host: Host) -> None:
+        self.ctx = ctx
+        self.spec = ctx.spec
+        self.host = host
+        self.t: Transport | None = None
+        self.steps: list[Step] = []
+        self.started = time.monotonic()
+        self.locked = False
+
+    # ------------------------------------------------------------ plumbing
+    @contextmanager
+    def step(self, name: str) -> Iterator[None]:
+        self.ctx.progress(self.host.name, name)
+        began = time.monotonic()
+        try:
+            yield
+        except Exception as exc:
+            self.steps.append(Step(name, time.monotonic() - began, False, str(exc)))
+            raise
+        self.steps.append(Step(name, time.monotonic() - began))
+
+    def result(self, outcome: str, **kw: object) -> HostResult:
+        return HostResult(host=self.host.name, outcome=outcome, steps=tuple(self.steps),
+                          seconds=time.monotonic() - self.started, **kw)  # type: ignore[arg-type]
+
+    def open(self) -> None:
+        with self.step("connect"):
+            self.t = self.ctx.connect(self.host, self.ctx.ssh)
+
+    def close(self) -> None:
+        if self.t is not None:
+            if self.locked:
+                self.unlock()
+            self.t.close()
+
+    @property
+    def root(self) -> str:
+        return str(self.host.vars.get("rosdeploy_deploy_root") or self.spec.deploy_root)
+
+    @property
+    def compose_pref(self) -> str:
+        return str(self.host.vars.get("rosdeploy_compose", "auto"))
+
+    def devices(self) -> tuple[str, ...]:
+        used = {d for s in self.spec.services for d in s.devices}
+        return tuple(sorted(self.host.devices[d] for d in used if d in self.host.devices))
+
+    def wants_gpu(self) -> bool:
+        return self.host.gpu and any(s.gpu for s in self.spec.services)
+
+    def read_state(self) -> RobotState:
+        with self.step("state"):
+            out = self.t.run(commands.state(self.root, self.spec.project, self.devices(),
+                                            self.compose_pref, self.wants_gpu()))
+        return parse_state(out.stdout)
+
+    def lock(self) -> str | None:
+        """Take the robot's lock; None when taken, else who holds it."""
+        owner = {"run": self.ctx.run_id, "by": self.ctx.operator, "since": now(), "pid": os.getpid()}
+        deadline = time.monotonic() + self.ctx.lock_wait
+        with self.step("lock"):
+            while True:
+                out = self.t.run(commands.lock(self.root, self.spec.project, owner, self.ctx.break_lock))
+                if out.ok:
+                    self.locked = True
+                    return None
+                if time.monotonic() >= deadline or self.ctx.cancel.is_set():
+                    return out.stdout.replace("held ", "", 1).strip() or out.stderr.strip()
+                time.sleep(1.0)
+
+    def unlock(self) -> None:
+        try:
+            self.t.run(commands.unlock(self.root, self.spec.project, self.ctx.run_id))
+            self.locked = False
+        except RemoteError:
+            pass   # connection gone: the lock names this run, `--break-lock` clears it
+
+    def up(self, release: str, flavor: str) -> tuple[bool, str]:
+        with self.step(f"start {release}"):
+            out = self.t.run(commands.up(self.root, self.spec.project, release, flavor,
+                                         timeout=self.spec.command_timeout))
+        return out.ok, (out.stdout + out.stderr).strip()
+
+    def gate(self) -> Verdict:
+        with self.step("health"):
+            return wait_healthy(self.t, self.spec)
+
+    def history(self, entry: dict) -> None:
+        self.t.run(commands.record(self.root, self.spec.project, self.entry(entry)))
+
+    def entry(self, fields: dict) -> dict:
+        return {"time": now(), "by": self.ctx.operator, "run": self.ctx.run_id, **fields}
+
+    def activate(self, release: str, fields: dict) -> None:
+        with self.step("activate"):
+            self.t.check(commands.finish(self.root, self.spec.project, release, self.entry(fields),
+                                         self.spec.rollback.keep_releases), "activate")
+
+    def logs_of(self, verdict: Verdict) -> dict[str, str]:
+        """Last log lines of the failing service (or of every service not running right)."""
+        names = {c.service: c.name for c in verdict.containers}
+        wanted = [verdict.service] if verdict.service in names else list(names)
+        out = {}
+        for service in wanted:
+            res = self.t.run(commands.logs(names[service], 30))
+            out[service] = (res.stdout + res.stderr).strip()[-4000:]
+        return out
+
+
+# ------------------------------------------------------------------ apply
+
+def preflight(state: RobotState, run: RobotRun, free_needed: int) -> list[str]:
+    """Why this robot cannot take the release; empty when it can. Changes nothing."""
+    problems = []
+    if not state.docker_ok:
+        problems.append(f"Docker engine not usable as {run.host.user or 'the SSH user'}: {state.docker or 'no answer'}"
+                        " (is dockerd running, and is the user in the `docker` group?)")
+    if state.compose is None:
+        problems.append("neither `docker compose` (v2) nor `docker-compose` (v1) is installed on the robot")
+    if state.free_mb is not None and state.free_mb < free_needed:
+        problems.append(f"only {state.free_mb} MB free under {run.root}; the release needs "
+                        f"{free_needed} MB (preflight.min_free_disk_mb)")
+    by_path = {path: name for name, path in run.host.devices.items()}
+    for path in state.missing_devices:
+        problems.append(f"device {path} (`devices.{by_path.get(path, '?')}` in the inventory) is missing "
+                        "on the robot: plug it in / check its udev rule, or fix the inventory")
+    if run.wants_gpu() and "nvidia" not in (state.runtimes or {}):
+        problems.append("robot has gpu: true but its Docker engine has no `nvidia` runtime: "
+                        "install the NVIDIA Container Toolkit")
+    return problems
+
+
+def up_to_date(state: RobotState, release: RenderedRelease, spec: FleetSpec) -> bool:
+    if state.current != release.release_id:
+        return False
+    on_release = [c for c in state.containers if c.release in ("", release.release_id)]
+    return not unhealthy_services(on_release, expected_services(spec))
+
+
+def apply_host(ctx: RunContext, host: Host, release: RenderedRelease) -> HostResult:
+    run = RobotRun(ctx, host)
+    if ctx.cancel.is_set():
+        return run.result(SKIPPED, new_release=release.release_id, reason="interrupted before this robot started")
+    try:
+        run.open()
+        return _apply(run, release)
+    except ConnectError as exc:
+        return run.result(UNREACHABLE, new_release=release.release_id, reason=str(exc))
+    except RemoteError as exc:
+        return run.result(FAILED, new_release=release.release_id, reason=str(exc))
+    finally:
+        run.close()
+
+
+def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
+    state = run.read_state()
+    new, old = release.release_id, state.current
+    base = {"old_release": old, "new_release": new}
+    if run.ctx.cancel.is_set():
+        return run.result(SKIPPED, running_release=old, reason="interrupted before this robot started", **base)
+    if state.lock is None and up_to_date(state, release, run.spec):
+        return run.result(UNCHANGED, running_release=old, reason="already on this release and healthy", **base)
+    problems = preflight(state, run, run.spec.min_free_disk_mb)
+    if problems:
+        return run.result(FAILED, running_release=old, reason="preflight: " + "; ".join(problems), **base)
+    holder = run.lock()
+    if holder is not None:
+        return run.result(LOCKED, running_release=old, reason=f"locked by another run: {holder} "
+                          "(wait, or clear a stale lock with --break-lock)", **base)
+    return _switch(run, release, state, base)
+
+
+def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: dict) -> HostResult:
+    new, old = release.release_id, state.current
+    with run.step("pull"):
+        pulled = run.t.run(commands.pull(release.images, timeout=run.spec.command_timeout))
+    if not pulled.ok:
+        return run.result(FAILED, running_release=old, reason="pull failed, nothing changed: "
+                          + _pull_errors(pulled.stdout, run.spec.registry), **base)
+    with run.step("upload"):
+        run.t.check(commands.upload(run.root, run.spec.project, new, _tarball(run, release, pulled.stdout)),
+                    "upload")
+    if run.ctx.cancel.is_set():
+        return run.result(SKIPPED, running_release=old, reason="interrupted before switching", **base)
+    started, output = run.up(new, state.flavor or "v2")
+    verdict = run.gate() if started else Verdict(False, f"compose up failed: {output[-600:]}")
+    if verdict.ok:
+        run.activate(new, {"event": "deploy", "release": new, "version": release.version,
+                           "digest": release.digest, "from": old, "result": "active"})
+        return run.result(DEPLOYED, running_release=new, reason=verdict.reason, **base)
+    return _recover(run, release, state, verdict, base)
+
+
+def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict: Verdict,
+             base: dict) -> HostResult:
+    new, old = release.release_id, state.current
+    logs = run.logs_of(verdict) if verdict.containers else {}
+    why = f"health gate failed: {verdict.reason}"
+    run.history({"event": "deploy", "release": new, "version": release.version, "from": old,
+                 "result": "failed", "reason": verdict.reason})
+    failed = {"failed_service": verdict.service, "logs": logs, **base}
+    if not run.spec.rollback.auto:
+        return run.result(FAILED, running_release=new, reason=why + " (rollback.auto is off: left running)", **failed)
+    if old is None or old not in state.releases:
+        with run.step("stop failed release"):
+            run.t.run(commands.down(run.root, run.spec.project, new, state.flavor or "v2"))
+        return run.result(STOPPED, running_release=None,
+                          reason=why + "; no previous release on the robot, so the failed one was stopped", **failed)
+    started, output = run.up(old, state.flavor or "v2")
+    back = run.gate() if started else Verdict(False, f"compose up failed: {output[-600:]}")
+    run.history({"event": "auto-rollback", "release": old, "rolled_back_from": new,
+                 "result": "active" if back.ok else "unhealthy", "reason": verdict.reason})
+    if back.ok:
+        return run.result(ROLLED_BACK, running_release=old, reason=why + f"; rolled back to {old}", **failed)
+    return run.result(FAILED, running_release=old, reason=why + f"; rollback to {old} is unhealthy too: "
+                      + back.reason, **failed)
+
+
+def _pull_errors(stdout: str, registry: str) -> str:
+    missing = [line.split(" ", 2) for line in stdout.splitlines() if line.startswith("missing ")]
+    detail = "; ".join(f"{m[1]}: {m[2].strip() if len(m) > 2 else ''}".strip() for m in missing)
+    return (detail or stdout.strip()[-400:]) + f" (is the registry {registry} reachable from the robot, " \
+                                                "and is the tag pushed?)"
+
+
+def _tarball(run: RobotRun, release: RenderedRelease, pull_output: str) -> bytes:
+    """The release dir's content: rendered files + manifest.json + images.txt, modes kept."""
+    images = {}
+    for line in pull_output.splitlines():
+        parts = line.split()
+        if parts[:1] == ["ok"] and len(parts) >= 3:
+            images[parts[1]] = {"id": parts[2], "repo_digests": parts[3].split(",") if len(parts) > 3 else []}
+    manifest = {"project": run.spec.project, "host": run.host.name, "version": release.version,
+                "release": release.release_id, "digest": release.digest, "images": images,
+                "deployed_by": run.ctx.operator, "deployed_at": now(), "run": run.ctx.run_id,
+                "rosdeploy": __version__, "files": [f.name for f in release.files]}
+    extra = [("manifest.json", json.dumps(manifest, indent=2, sort_keys=True) + "\n", 0o644),
+             ("images.txt", "".join(f"{i}\n" for i in release.images), 0o644)]
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w") as tar:
+        for name, content, mode in [(f.name, f.content, f.mode) for f in release.files] + extra:
+            data = content.encode("utf-8")
+            info = tarfile.TarInfo(name)
+            info.size, info.mode, info.mtime = len(data), mode, int(time.time())
+            tar.addfile(info, io.BytesIO(data))
+    return buf.getvalue()
+
+
+# --------------------------------------------------------------- rollback
+
+def rollback_host(ctx: RunContext, host: Host, to_version: str | None = None,
+                  to_release: str | None = None) -> HostResult:
+    """Switch to a kept release without pulling: the previous one, a version, or an exact release id."""
+    run = RobotRun(ctx, host)
+    try:
+        run.open()
+        return _rollback(run, to_version, to_release)
+    except ConnectError as exc:
+        return run.result(UNREACHABLE, reason=str(exc))
+    except RemoteError as exc:
+        return run.result(FAILED, reason=str(exc))
+    finally:
+        run.close()
+
+
+def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> HostResult:
+    state = run.read_state()
+    if to_release:
+        target = to_release if to_release in state.releases else None
+    else:
+        target = release_for_version(state, to_version) if to_version else previous_release(state)
+    base = {"old_release": state.current, "new_release": target, "running_release": state.current}
+    if target is None:
+        kept = ", ".join(state.releases) or "none"
+        what = f"no kept release of version {to_version}" if to_version else "no previous release"
+        return run.result(FAILED, reason=f"{what} on the robot (kept: {kept})", **base)
+    if state.flavor is None:
+        return run.result(FAILED, reason="no docker compose on the robot", **base)
+    holder = run.lock()
+    if holder is not None:
+        return run.result(LOCKED, reason=f"locked by another run: {holder} (use --break-lock if it is stale)",
+                          **base)
+    started, output = run.up(target, state.flavor)
+    verdict = run.gate() if started else Verdict(False, f"compose up failed: {output[-600:]}")
+    run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
+                          "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback"})
+    base["running_release"] = target
+    if verdict.ok:
+        return run.result(SWITCHED, reason=f"rolled back to {target}", **base)
+    return run.result(FAILED, reason=f"switched to {target} but it is unhealthy: {verdict.reason}",
+                      failed_service=verdict.service, logs=run.logs_of(verdict), **base)

@@ -1,0 +1,138 @@
+"""What a robot looks like right now, parsed from one `state` round trip, and the
+pure decisions made from it (which release is previous, is it healthy).
+
+Nothing here talks to a robot: deploy.py runs the commands, this module reads
+their output. That keeps every decision unit-testable without SSH.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any, Iterable, Mapping
+
+from rosdeploy.commands import parse_containers, parse_sections
+
+
+@dataclass(frozen=True)
+class Container:
+    name: str
+    service: str
+    image: str
+    status: str            # created | running | restarting | exited | dead | paused
+    health: str | None     # starting | healthy | unhealthy | None (no health check)
+    restarts: int
+    workdir: str = ""
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> "Container":
+        return cls(name=str(data.get("name", "")).lstrip("/"), service=str(data.get("service") or ""),
+                   image=str(data.get("image", "")), status=str(data.get("status", "")),
+                   health=data.get("health"), restarts=int(data.get("restarts") or 0),
+                   workdir=str(data.get("workdir") or ""))
+
+    @property
+    def release(self) -> str:
+        """Release id this container was started from (compose records its working dir)."""
+        return self.workdir.rstrip("/").rsplit("/", 1)[-1] if "/releases/" in self.workdir else ""
+
+
+@dataclass(frozen=True)
+class RobotState:
+    home: str
+    dir: str
+    current: str | None                 # release id `current` points at
+    manifest: Mapping[str, Any] | None
+    lock: Mapping[str, Any] | None      # owner of a held lock
+    releases: tuple[str, ...]
+    history: tuple[Mapping[str, Any], ...]   # oldest first
+    docker: str                          # server version, or the error docker printed
+    docker_ok: bool
+    compose: tuple[str, str] | None      # ("v2", "2.40.3") / ("v1", "1.29.2")
+    containers: tuple[Container, ...]
+    free_mb: int | None
+    runtimes: Mapping[str, Any] | None   # docker runtimes when asked (gpu robots)
+    missing_devices: tuple[str, ...]
+
+    @property
+    def flavor(self) -> str | None:
+        return self.compose[0] if self.compose else None
+
+
+def parse_state(stdout: str) -> RobotState:
+    s = parse_sections(stdout)
+    current = s.get("current", "").strip()
+    docker = s.get("docker", "").strip()
+    compose = s.get("compose", "").split()
+    disk = s.get("disk", "").strip()
+    return RobotState(
+        home=s.get("home", ""), dir=s.get("dir", ""),
+        current=current.rsplit("/", 1)[-1] or None,
+        manifest=_json(s.get("manifest")), lock=_json(s.get("lock")),
+        releases=tuple(r for r in s.get("releases", "").split() if r),
+        history=tuple(h for h in (_json(line) for line in s.get("history", "").splitlines()) if h),
+        docker=docker, docker_ok=bool(docker) and docker[0].isdigit(),
+        compose=(compose[0], compose[1] if len(compose) > 1 else "") if compose else None,
+        containers=tuple(Container.from_json(c) for c in parse_containers(s.get("containers", ""))),
+        free_mb=int(disk) if disk.isdigit() else None,
+        runtimes=_json(s.get("gpu")),
+        missing_devices=tuple(line.split(" ", 1)[1] for line in s.get("devices", "").splitlines()
+                              if line.startswith("missing ")))
+
+
+def _json(text: str | None) -> Any:
+    if not text or not text.strip():
+        return None
+    try:
+        return json.loads(text)
+    except ValueError:
+        return None
+
+
+# ---------------------------------------------------------------- decisions
+
+def unhealthy_services(containers: Iterable[Container], expected: Iterable[str]) -> dict[str, str]:
+    """Service -> why it is not healthy right now; empty when all expected services are fine.
+
+    'starting' counts as not healthy: a no-op must not claim a robot is fine
+    while its services are still coming up.
+    """
+    by_service = {c.service: c for c in containers}
+    problems: dict[str, str] = {}
+    for name in expected:
+        c = by_service.get(name)
+        if c is None:
+            problems[name] = "no container"
+        elif c.status != "running":
+            problems[name] = f"container {c.status}"
+        elif c.health not in (None, "healthy"):
+            problems[name] = f"health {c.health}"
+    return problems
+
+
+def previous_release(state: RobotState) -> str | None:
+    """The release to go back to: the newest one that was active before the current one,
+    skipping releases an operator or rosdeploy already rolled back from (unless they
+    were successfully activated again later), and releases no longer on the robot."""
+    bad: set[str] = set()
+    active: list[str] = []
+    for entry in state.history:
+        release = entry.get("release")
+        if entry.get("result") == "active" and release:
+            bad.discard(release)
+            active.append(release)
+        rolled_from = entry.get("rolled_back_from")
+        if rolled_from:
+            bad.add(rolled_from)
+    for release in reversed(active):
+        if release != state.current and release not in bad and release in state.releases:
+            return release
+    return None
+
+
+def release_for_version(state: RobotState, version: str) -> str | None:
+    """Newest kept release of a version (release ids are `<version>-<digest12>`)."""
+    matches = [r for r in state.releases if r.rsplit("-", 1)[0] == version]
+    if not matches:
+        return None
+    activated = [e.get("release") for e in state.history if e.get("result") == "active"]
+    return max(matches, key=lambda r: max((i for i, a in enumerate(activated) if a == r), default=-1))

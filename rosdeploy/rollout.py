@@ -1,0 +1,156 @@
+"""A rollout across the fleet: waves, failure budget, fleet-level rollback, Ctrl-C.
+
+A bad release must stop at the canary; a flaky robot must not hold up the
+others; and when a rollout stops, robots that already took the new release
+go back (per policy), so the fleet is never left split between versions by
+accident. Every robot's outcome is kept in the FleetResult.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import replace
+from typing import Callable, Sequence, TypeVar
+
+from rosdeploy.deploy import RunContext, apply_host, rollback_host
+from rosdeploy.model import Host, RenderedRelease, RolloutPolicy
+from rosdeploy.results import DEPLOYED, SKIPPED, FleetResult, HostResult
+
+T = TypeVar("T")
+
+
+def parallel(hosts: Sequence[Host], work: Callable[[Host], T], forks: int,
+             on_interrupt: Callable[[], None] = lambda: None) -> list[T]:
+    """Run `work` for every host, at most `forks` at once, results in host order.
+
+    Ctrl-C does not abandon robots mid-step: it calls on_interrupt (which sets
+    the run's cancel flag, so robots not yet started skip) and keeps waiting
+    for the running ones to finish or roll back and release their locks.
+    """
+    if not hosts:
+        return []
+    pool = ThreadPoolExecutor(max_workers=max(1, min(forks, len(hosts))), thread_name_prefix="robot")
+    futures: list[Future[T]] = [pool.submit(work, h) for h in hosts]
+    try:
+        return [_wait(f, on_interrupt) for f in futures]
+    finally:
+        pool.shutdown(wait=True)
+
+
+def _wait(future: Future[T], on_interrupt: Callable[[], None]) -> T:
+    while True:
+        try:
+            return future.result()
+        except KeyboardInterrupt:
+            on_interrupt()
+
+
+def wave_sizes(total: int, waves: Sequence[int | str]) -> list[int]:
+    """Cumulative targets -> sizes: [1, "10%", "50%", "100%"] over 40 robots -> [1, 3, 16, 20].
+
+    Each entry is how many robots (or what share) have been through once the
+    wave is done; the last wave always takes whoever is left.
+    """
+    sizes, done = [], 0
+    for entry in waves:
+        target = min(total, _amount(entry, total))
+        if target > done:
+            sizes.append(target - done)
+            done = target
+    if done < total:
+        sizes.append(total - done)
+    return sizes
+
+
+def _amount(entry: int | str, total: int) -> int:
+    if isinstance(entry, str) and entry.endswith("%"):
+        return max(1, math.ceil(total * float(entry[:-1]) / 100.0))
+    return int(entry)
+
+
+def allowed_failures(max_fail: int | str, wave_size: int) -> int:
+    if isinstance(max_fail, str) and max_fail.endswith("%"):
+        return math.floor(wave_size * float(max_fail[:-1]) / 100.0)
+    return int(max_fail)
+
+
+def ordered(hosts: Sequence[Host], order_by: str | None) -> list[Host]:
+    """Group robots by their first inventory group starting with `order_by` (e.g. one site at a time)."""
+    if not order_by:
+        return list(hosts)
+
+    def key(h: Host) -> str:
+        return next((g for g in h.groups if g.startswith(order_by)), "\uffff")
+
+    return sorted(hosts, key=key)   # stable: inventory order within a group
+
+
+def plan_waves(hosts: Sequence[Host], policy: RolloutPolicy) -> list[list[Host]]:
+    hosts = ordered(hosts, policy.order_by)
+    waves, start = [], 0
+    for size in wave_sizes(len(hosts), policy.waves):
+        waves.append(hosts[start:start + size])
+        start += size
+    return waves
+
+
+Notify = Callable[[str, dict], None]   # rollout-level events for the output layer
+
+
+def apply_fleet(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, RenderedRelease],
+                policy: RolloutPolicy, notify: Notify = lambda event, data: None) -> FleetResult:
+    started = time.monotonic()
+    waves = plan_waves(hosts, policy)
+    done: list[HostResult] = []
+    aborted = False
+    for number, wave in enumerate(waves, 1):
+        if ctx.cancel.is_set():
+            break
+        notify("wave", {"number": number, "of": len(waves), "hosts": [h.name for h in wave]})
+        results = parallel(wave, lambda h: apply_host(ctx, h, releases[h.name]), policy.forks, ctx.cancel.set)
+        done.extend(_with_wave(r, number) for r in results)
+        failed = [r for r in results if not r.ok and r.outcome != SKIPPED]
+        budget = allowed_failures(policy.max_fail, len(wave))
+        if len(failed) > budget:
+            aborted = True
+            notify("abort", {"wave": number, "failed": [r.host for r in failed], "max_fail": budget})
+            break
+        if policy.pause and number < len(waves) and not ctx.cancel.is_set():
+            notify("pause", {"seconds": policy.pause})
+            ctx.cancel.wait(policy.pause)
+    done.extend(_skipped(waves, done, "rollout stopped before this robot's wave"))
+    back = _fleet_rollback(ctx, hosts, done, policy, notify) if aborted and ctx.spec.rollback.fleet else ()
+    return FleetResult("apply", tuple(done), aborted=aborted, fleet_rollback=back,
+                       interrupted=ctx.cancel.is_set(), seconds=time.monotonic() - started, run_id=ctx.run_id)
+
+
+def _with_wave(result: HostResult, wave: int) -> HostResult:
+    return replace(result, wave=wave)
+
+
+def _skipped(waves: list[list[Host]], done: list[HostResult], reason: str) -> list[HostResult]:
+    seen = {r.host for r in done}
+    return [HostResult(h.name, SKIPPED, reason=reason, wave=n)
+            for n, wave in enumerate(waves, 1) for h in wave if h.name not in seen]
+
+
+def _fleet_rollback(ctx: RunContext, hosts: Sequence[Host], done: list[HostResult],
+                    policy: RolloutPolicy, notify: Notify) -> tuple[HostResult, ...]:
+    """Return robots that took the new release to the release they ran before this rollout."""
+    moved = {r.host: r.old_release for r in done if r.outcome == DEPLOYED and r.old_release}
+    if not moved:
+        return ()
+    notify("fleet-rollback", {"hosts": sorted(moved)})
+    targets = [h for h in hosts if h.name in moved]
+    # A fleet rollback is the brake: it runs even after Ctrl-C, so use a fresh cancel flag.
+    brake = replace(ctx, cancel=threading.Event())
+    return tuple(parallel(targets, lambda h: rollback_host(brake, h, to_release=moved[h.name]), policy.forks))
+
+
+def rollback_fleet(ctx: RunContext, hosts: Sequence[Host], forks: int, to_version: str | None = None) -> FleetResult:
+    """The emergency brake: every targeted robot at once, no pull."""
+    started = time.monotonic()
+    results = parallel(hosts, lambda h: rollback_host(ctx, h, to_version=to_version), forks)
+    return FleetResult("rollback", tuple(results), seconds=time.monotonic() - started, run_id=ctx.run_id)

@@ -1,0 +1,193 @@
+"""Getting commands and bytes to a robot: a narrow protocol and its SSH implementation.
+
+`Transport` is all the deploy logic sees: run a Command, get a Result. The SSH
+implementation uses fabric for what it is good at (ssh_config, ProxyJump
+gateways, agent and key handling) and drives the paramiko channel itself for
+exec, because a deploy is dozens of short commands per robot and hundreds of
+robots at once: one connection per robot, no reader threads per command.
+
+Host keys are always verified: fabric installs AutoAddPolicy by default, we
+replace it with RejectPolicy before connecting.
+"""
+from __future__ import annotations
+
+import os
+import select
+import socket
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import paramiko
+from fabric import Config, Connection
+
+from rosdeploy.commands import Command
+from rosdeploy.errors import CommandFailed, ConnectError, HostKeyError
+from rosdeploy.model import Host
+
+
+@dataclass(frozen=True)
+class Result:
+    command: str        # as shown to people: secrets masked by the caller's Output
+    stdout: str
+    stderr: str
+    exited: int
+    duration: float
+
+    @property
+    def ok(self) -> bool:
+        return self.exited == 0
+
+
+class Transport(Protocol):
+    host: Host
+
+    def run(self, command: Command) -> Result: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class SSHOptions:
+    known_hosts: str | None = None       # None: ~/.ssh/known_hosts
+    ssh_config: str | None = None        # None: ~/.ssh/config when present
+    connect_timeout: float = 10.0
+    command_timeout: float = 600.0
+
+
+def known_hosts_for(host: Host, options: SSHOptions) -> list[str]:
+    """Known-hosts files to trust for a robot: the inventory's, else the fleet's, else the user's."""
+    chosen = host.vars.get("rosdeploy_known_hosts") or options.known_hosts or "~/.ssh/known_hosts"
+    files = [os.path.expanduser(str(chosen))]
+    if os.path.exists("/etc/ssh/ssh_known_hosts"):
+        files.append("/etc/ssh/ssh_known_hosts")
+    return files
+
+
+def fabric_config(options: SSHOptions) -> Config:
+    """One fabric Config per run: ssh_config is parsed once, not once per robot."""
+    path = os.path.expanduser(options.ssh_config) if options.ssh_config else None
+    if path and not os.path.exists(path):
+        raise ConnectError("ssh", f"ssh config {path} does not exist: fix `ssh.config` in the fleet file")
+    overrides = {"load_ssh_configs": True}
+    return Config(overrides=overrides, runtime_ssh_path=path) if path else Config(overrides=overrides)
+
+
+class SSHTransport:
+    """One SSH connection to one robot, reused for every command of a run."""
+
+    def __init__(self, host: Host, options: SSHOptions, config: Config | None = None) -> None:
+        self.host = host
+        self.options = options
+        self._conn = self._connection(config or fabric_config(options))
+
+    def _connection(self, config: Config) -> Connection:
+        kwargs: dict = {}
+        if self.host.key_file:
+            kwargs["key_filename"] = [os.path.expanduser(self.host.key_file)]
+        conn = Connection(self.host.address, user=self.host.user, port=self.host.port, config=config,
+                          connect_timeout=int(self.options.connect_timeout) or None, connect_kwargs=kwargs)
+        conn.client.set_missing_host_key_policy(paramiko.RejectPolicy())
+        for path in known_hosts_for(self.host, self.options):
+            if os.path.exists(path):
+                conn.client.load_system_host_keys(path)
+        return conn
+
+    @property
+    def endpoint(self) -> str:
+        port = self._conn.port
+        return self._conn.host if port == 22 else f"[{self._conn.host}]:{port}"
+
+    def open(self) -> "SSHTransport":
+        try:
+            self._conn.open()
+        except paramiko.BadHostKeyException as exc:
+            raise HostKeyError(self.host.name, self._changed_key_message(exc)) from exc
+        except paramiko.SSHException as exc:
+            if "not found in known_hosts" in str(exc):
+                raise HostKeyError(self.host.name, self._unknown_key_message()) from exc
+            raise ConnectError(self.host.name, f"SSH to {self.endpoint} failed: {exc}") from exc
+        except (socket.timeout, TimeoutError) as exc:
+            raise ConnectError(self.host.name, f"unreachable: no answer from {self.endpoint} within "
+                                               f"{self.options.connect_timeout:g}s (ssh.connect_timeout)") from exc
+        except OSError as exc:
+            raise ConnectError(self.host.name, f"unreachable: {self.endpoint}: {exc.strerror or exc}") from exc
+        return self
+
+    def _changed_key_message(self, exc: paramiko.BadHostKeyException) -> str:
+        files = ", ".join(known_hosts_for(self.host, self.options))
+        return (f"HOST KEY CHANGED for {self.endpoint}: it offered {exc.key.get_name()} "
+                f"{exc.key.fingerprint} but {files} expects {exc.expected_key.fingerprint}. "
+                f"This can be an attack; if the robot was reinstalled, verify the new key and run "
+                f"`ssh-keygen -R '{self.endpoint}'` then add the new key.")
+
+    def _unknown_key_message(self) -> str:
+        files = ", ".join(known_hosts_for(self.host, self.options))
+        return (f"host key of {self.endpoint} is not in {files}; rosdeploy never trusts an unknown "
+                f"key. Verify the robot's fingerprint, then add it (e.g. `ssh-keyscan -p {self._conn.port} "
+                f"{self._conn.host} >> ~/.ssh/known_hosts`) or point `rosdeploy_known_hosts` at a file that has it.")
+
+    def run(self, command: Command) -> Result:
+        """Run one command; a non-zero exit is a Result, not an exception (see `check`)."""
+        if not self._conn.is_connected:
+            self.open()
+        started = time.monotonic()
+        timeout = command.timeout or self.options.command_timeout
+        try:
+            chan = self._conn.transport.open_session(timeout=self.options.connect_timeout)
+            chan.exec_command(command.wire())
+            if command.stdin is not None:
+                chan.sendall(command.stdin)
+                chan.shutdown_write()
+            out, err = _drain(chan, started + timeout)
+            code = chan.recv_exit_status()
+        except TimeoutError as exc:
+            raise ConnectError(self.host.name, f"`{command.display()}` timed out after {timeout:g}s") from exc
+        except (paramiko.SSHException, OSError, EOFError) as exc:
+            raise ConnectError(self.host.name, f"connection lost during `{command.display()}`: {exc}") from exc
+        return Result(command.display(), out, err, code, time.monotonic() - started)
+
+    def check(self, command: Command, what: str = "") -> Result:
+        result = self.run(command)
+        if not result.ok:
+            raise CommandFailed(self.host.name, result, what or command.display())
+        return result
+
+    def close(self) -> None:
+        self._conn.close()
+
+
+def _drain(chan: paramiko.Channel, deadline: float) -> tuple[str, str]:
+    """Read stdout and stderr together until the remote side closes or the deadline passes."""
+    out: list[bytes] = []
+    err: list[bytes] = []
+    while True:
+        while chan.recv_ready():
+            out.append(chan.recv(65536))
+        while chan.recv_stderr_ready():
+            err.append(chan.recv_stderr(65536))
+        if chan.exit_status_ready() and not chan.recv_ready() and not chan.recv_stderr_ready():
+            # eof_received: the exit status can arrive before the last data packet
+            if chan.eof_received or chan.closed:
+                break
+        left = deadline - time.monotonic()
+        if left <= 0:
+            chan.close()
+            raise TimeoutError()
+        select.select([chan], [], [], min(left, 1.0))
+    return b"".join(out).decode("utf-8", "replace"), b"".join(err).decode("utf-8", "replace")
+
+
+def connect(host: Host, options: SSHOptions, config: Config | None = None) -> SSHTransport:
+    return SSHTransport(host, options, config).open()
+
+
+def local_user_at_host() -> str:
+    """Who deployed, for the manifest and history: user@machine of the operator."""
+    user = os.environ.get("USER") or os.environ.get("LOGNAME") or str(os.getuid())
+    return f"{user}@{socket.gethostname()}"
+
+
+def expand(path: str | None) -> str | None:
+    return str(Path(path).expanduser()) if path else None

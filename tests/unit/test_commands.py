@@ -1,0 +1,127 @@
+"""The remote scripts, run for real by a local sh against a temp dir (no SSH, no robot)."""
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import tarfile
+from pathlib import Path
+
+import pytest
+
+from rosdeploy import commands
+
+
+def run_local(cmd: commands.Command, home: Path) -> subprocess.CompletedProcess:
+    """Run the exact wire string through a login-like shell, as sshd would."""
+    env = {"HOME": str(home), "PATH": os.environ["PATH"]}
+    return subprocess.run(["sh", "-c", cmd.wire()], input=cmd.stdin, capture_output=True, env=env)
+
+
+def tarball(files: dict[str, tuple[str, int]]) -> bytes:
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w") as tar:
+        for name, (content, mode) in files.items():
+            data = content.encode()
+            info = tarfile.TarInfo(name)
+            info.size, info.mode = len(data), mode
+            tar.addfile(info, io.BytesIO(data))
+    return buf.getvalue()
+
+
+def test_hostile_values_stay_data_not_code(tmp_path: Path) -> None:
+    marker = tmp_path / "pwned"
+    evil = f"x; touch {marker}; $(touch {marker}) `touch {marker}`"
+    cmd = commands.record("~/rosdeploy", "demo", {"reason": evil, "quote": "it's \"quoted\"\n"})
+    assert evil not in cmd.argv[2], "values must never be spliced into the script text"
+    assert run_local(cmd, tmp_path).returncode == 0
+    assert not marker.exists()
+    line = (tmp_path / "rosdeploy/demo/history.jsonl").read_text()
+    assert json.loads(line)["reason"] == evil
+
+
+def test_tilde_root_resolves_to_the_ssh_users_home(tmp_path: Path) -> None:
+    out = run_local(commands.state("~/deploy", "demo"), tmp_path)
+    sections = commands.parse_sections(out.stdout.decode())
+    assert sections["dir"] == f"{tmp_path}/deploy/demo"
+    assert not (tmp_path / "deploy").exists(), "state must not create anything"
+
+
+def test_lock_is_exclusive_and_unlock_needs_the_token(tmp_path: Path) -> None:
+    first = run_local(commands.lock("~/r", "demo", {"run": "run-A", "by": "alice@ops"}), tmp_path)
+    assert first.returncode == 0 and first.stdout.strip() == b"locked"
+    second = run_local(commands.lock("~/r", "demo", {"run": "run-B", "by": "bob@ops"}), tmp_path)
+    assert second.returncode == 3
+    assert json.loads(second.stdout.decode().replace("held ", "", 1))["by"] == "alice@ops"
+    run_local(commands.unlock("~/r", "demo", "run-B"), tmp_path)
+    assert (tmp_path / "r/demo/.lock").is_dir(), "another run's token must not release the lock"
+    run_local(commands.unlock("~/r", "demo", "run-A"), tmp_path)
+    assert not (tmp_path / "r/demo/.lock").exists()
+
+
+def test_break_lock_takes_a_stale_lock(tmp_path: Path) -> None:
+    run_local(commands.lock("~/r", "demo", {"run": "dead"}), tmp_path)
+    broke = run_local(commands.lock("~/r", "demo", {"run": "new"}, break_stale=True), tmp_path)
+    assert broke.returncode == 0
+    assert json.loads((tmp_path / "r/demo/.lock/owner").read_text())["run"] == "new"
+
+
+def test_upload_lands_whole_with_modes_and_leaves_no_temp(tmp_path: Path) -> None:
+    data = tarball({"compose.yml": ("services: {}\n", 0o644), ".env": ("TOKEN=s3cret\n", 0o600)})
+    assert run_local(commands.upload("~/r", "demo", "1.0.0-abc", data), tmp_path).returncode == 0
+    release = tmp_path / "r/demo/releases/1.0.0-abc"
+    assert (release / "compose.yml").read_text() == "services: {}\n"
+    assert (release / ".env").stat().st_mode & 0o777 == 0o600
+    assert [p.name for p in (tmp_path / "r/demo/releases").iterdir()] == ["1.0.0-abc"]
+
+
+def test_cut_upload_never_becomes_a_release(tmp_path: Path) -> None:
+    data = tarball({"compose.yml": ("x" * 5000, 0o644)})[:700]   # connection cut mid-stream
+    run_local(commands.upload("~/r", "demo", "1.1.0-def", data), tmp_path)
+    assert not (tmp_path / "r/demo/releases/1.1.0-def").exists()
+
+
+def test_activate_switches_current_and_prunes_all_but_keep(tmp_path: Path) -> None:
+    for i, rel in enumerate(["a-1", "b-2", "c-3", "d-4"]):
+        run_local(commands.upload("~/r", "demo", rel, tarball({"images.txt": (f"img:{rel}\n", 0o644)})), tmp_path)
+        out = run_local(commands.finish("~/r", "demo", rel, {"release": rel, "result": "active"}, keep=3), tmp_path)
+        assert out.returncode == 0, out.stderr
+        os.utime(tmp_path / f"r/demo/releases/{rel}", (1000 + i, 1000 + i))   # mtime order = activation order
+    demo = tmp_path / "r/demo"
+    assert os.readlink(demo / "current") == "releases/d-4"
+    assert sorted(p.name for p in (demo / "releases").iterdir()) == ["b-2", "c-3", "d-4"]
+    assert [json.loads(line)["release"] for line in (demo / "history.jsonl").read_text().splitlines()] == \
+        ["a-1", "b-2", "c-3", "d-4"]
+
+
+def test_rollback_target_is_not_pruned_after_reactivation(tmp_path: Path) -> None:
+    for i, rel in enumerate(["a-1", "b-2", "c-3"]):
+        run_local(commands.upload("~/r", "demo", rel, tarball({"images.txt": ("", 0o644)})), tmp_path)
+        os.utime(tmp_path / f"r/demo/releases/{rel}", (1000 + i, 1000 + i))
+    run_local(commands.finish("~/r", "demo", "a-1", {"release": "a-1"}, keep=3), tmp_path)  # rolled back to a-1
+    run_local(commands.upload("~/r", "demo", "d-4", tarball({"images.txt": ("", 0o644)})), tmp_path)
+    run_local(commands.finish("~/r", "demo", "d-4", {"release": "d-4"}, keep=3), tmp_path)
+    kept = sorted(p.name for p in (tmp_path / "r/demo/releases").iterdir())
+    assert "a-1" in kept, "the release that ran just before must survive pruning"
+    assert kept == ["a-1", "c-3", "d-4"]
+
+
+def test_state_reports_missing_devices(tmp_path: Path) -> None:
+    present = tmp_path / "ttyUSB0"
+    present.write_text("")
+    out = run_local(commands.state("~/r", "demo", (str(present), "/dev/robot/nope")), tmp_path)
+    sections = commands.parse_sections(out.stdout.decode())
+    assert sections["devices"] == "missing /dev/robot/nope"
+
+
+@pytest.mark.parametrize("builder", [
+    lambda: commands.up("~/r", "p; rm -rf /", "1.0.0-x", "v2"),
+    lambda: commands.pull(("registry/img:1.0.0; reboot",)),
+    lambda: commands.lock("~/r", "demo", {"by": "$(reboot)"}),
+])
+def test_every_builder_passes_values_as_arguments(builder) -> None:
+    cmd = builder()
+    assert cmd.argv[:2] == ("sh", "-c") and cmd.argv[3] == commands.PROG
+    script_text = cmd.argv[2]
+    assert "reboot" not in script_text and "rm -rf /" not in script_text

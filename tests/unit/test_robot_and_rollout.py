@@ -1,0 +1,101 @@
+"""Pure decisions: parsing robot state, choosing the previous release, planning waves."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from rosdeploy.model import Host, RolloutPolicy
+from rosdeploy.robot import Container, parse_state, previous_release, release_for_version, unhealthy_services
+from rosdeploy.rollout import allowed_failures, plan_waves, wave_sizes
+
+
+def state_text(current="1.1.0-bbb", history=(), releases=("1.0.0-aaa", "1.1.0-bbb"), containers=()) -> str:
+    parts = {
+        "home": "/home/robot", "dir": "/home/robot/rosdeploy/demo",
+        "current": f"releases/{current}" if current else "",
+        "manifest": json.dumps({"version": "1.1.0", "digest": "bbb"}),
+        "lock": "", "releases": "\n".join(releases),
+        "history": "\n".join(json.dumps(h) for h in history),
+        "docker": "20.10.24+dfsg1", "compose": "v2 2.40.3",
+        "containers": "\n".join(json.dumps(c) for c in containers),
+        "disk": "51234", "gpu": "", "devices": "missing /dev/robot/lidar",
+    }
+    return "".join(f"\n@@{k}\n{v}\n" for k, v in parts.items()) + "\n@@end\n"
+
+
+def test_parse_state_reads_every_section() -> None:
+    c = {"name": "/demo-driver-1", "service": "driver", "image": "r/demo/driver:1.1.0", "status": "running",
+         "health": "healthy", "restarts": 0, "workdir": "/home/robot/rosdeploy/demo/releases/1.1.0-bbb"}
+    st = parse_state(state_text(containers=[c]))
+    assert st.current == "1.1.0-bbb" and st.flavor == "v2" and st.docker_ok
+    assert st.free_mb == 51234 and st.missing_devices == ("/dev/robot/lidar",)
+    assert st.containers[0].name == "demo-driver-1" and st.containers[0].release == "1.1.0-bbb"
+    assert st.manifest["digest"] == "bbb"
+
+
+def test_docker_error_is_not_ok() -> None:
+    st = parse_state(state_text().replace("20.10.24+dfsg1", "permission denied while trying to connect"))
+    assert not st.docker_ok
+
+
+def test_unhealthy_services_names_each_problem() -> None:
+    cs = [Container("a", "driver", "i", "running", "healthy", 0), Container("b", "perc", "i", "running", "starting", 0),
+          Container("c", "nav", "i", "exited", None, 0)]
+    assert unhealthy_services(cs, ["driver", "perc", "nav", "bridge"]) == {
+        "perc": "health starting", "nav": "container exited", "bridge": "no container"}
+
+
+def active(release: str) -> dict:
+    return {"release": release, "result": "active"}
+
+
+def test_previous_release_is_the_one_active_before_current() -> None:
+    st = parse_state(state_text(history=[active("1.0.0-aaa"), active("1.1.0-bbb")]))
+    assert previous_release(st) == "1.0.0-aaa"
+
+
+def test_previous_release_skips_releases_already_rolled_back_from() -> None:
+    history = [active("a-1"), active("b-2"), {"release": "a-1", "result": "active", "rolled_back_from": "b-2"},
+               active("c-3")]
+    st = parse_state(state_text(current="c-3", history=history, releases=("a-1", "b-2", "c-3")))
+    assert previous_release(st) == "a-1", "b-2 was rolled back from: a second rollback must not return to it"
+
+
+def test_previous_release_needs_the_release_on_disk() -> None:
+    st = parse_state(state_text(history=[active("0.9.0-zzz"), active("1.1.0-bbb")], releases=("1.1.0-bbb",)))
+    assert previous_release(st) is None
+
+
+def test_release_for_version_prefers_the_last_activated() -> None:
+    history = [active("1.0.0-old"), active("1.0.0-new"), active("1.1.0-bbb")]
+    st = parse_state(state_text(history=history, releases=("1.0.0-new", "1.0.0-old", "1.1.0-bbb")))
+    assert release_for_version(st, "1.0.0") == "1.0.0-new"
+    assert release_for_version(st, "2.0.0") is None
+
+
+@pytest.mark.parametrize("total,waves,sizes", [
+    (40, [1, "10%", "50%", "100%"], [1, 3, 16, 20]),
+    (3, [1, "100%"], [1, 2]),
+    (1, [1, "10%", "100%"], [1]),
+    (10, [2], [2, 8]),              # the last wave always takes the rest
+    (5, ["100%"], [5]),
+])
+def test_wave_sizes(total, waves, sizes) -> None:
+    assert wave_sizes(total, waves) == sizes
+    assert sum(sizes) == total
+
+
+@pytest.mark.parametrize("max_fail,size,allowed", [(0, 10, 0), (1, 10, 1), ("10%", 10, 1), ("10%", 9, 0), ("50%", 3, 1)])
+def test_allowed_failures(max_fail, size, allowed) -> None:
+    assert allowed_failures(max_fail, size) == allowed
+
+
+def host(name: str, *groups: str) -> Host:
+    return Host(name=name, groups=("all", *groups), vars={}, address="127.0.0.1")
+
+
+def test_waves_follow_order_by_group() -> None:
+    hosts = [host("n1", "site_north"), host("s1", "site_south"), host("n2", "site_north"), host("s2", "site_south")]
+    waves = plan_waves(hosts, RolloutPolicy(waves=(1, "50%", "100%"), order_by="site_"))
+    assert [[h.name for h in w] for w in waves] == [["n1"], ["n2"], ["s1", "s2"]]
