@@ -1,0 +1,582 @@
+"""(FleetSpec, Host) -> RenderedRelease: every file one robot receives.
+
+Pure and deterministic: the only I/O is reading templates (once, when the
+Renderer is built), nothing depends on time or dict order, so the same inputs
+give byte-identical files and the same digest, and a release id means content.
+
+Python decides *what* goes into the files (resolved devices, groups, peers,
+secrets, validation); the Jinja2 templates in templates/ decide only the
+layout, so a user who overrides a template gets the same checked context.
+Every inventory or fleet value reaches a file through a quoting filter
+(yaml_str, compose_str, xml, env_value, udev_value): no value can break the
+syntax of the file it lands in.
+"""
+from __future__ import annotations
+
+import json
+import re
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+from xml.sax.saxutils import escape as _xml_escape
+
+import jinja2
+import yaml
+
+from rosdeploy.errors import Problem, RenderError
+from rosdeploy.fleet import size_bytes
+from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
+from rosdeploy.yamlsrc import Doc
+
+TEMPLATE_DIR = Path(__file__).resolve().parent.parent / "templates"
+
+COMPOSE_FILE = "compose.yml"
+ENV_FILE = ".env"
+UDEV_FILE = "99-rosdeploy.rules"
+LOGROTATE_FILE = "logrotate.conf"
+
+# rmw key in the fleet file -> (RMW_IMPLEMENTATION, DDS profile file, env var pointing at it, its value)
+RMW = {
+    "fastdds": ("rmw_fastrtps_cpp", "fastdds.xml", "FASTRTPS_DEFAULT_PROFILES_FILE", "/fastdds.xml"),
+    "cyclonedds": ("rmw_cyclonedds_cpp", "cyclonedds.xml", "CYCLONEDDS_URI", "file:///cyclonedds.xml"),
+}
+
+# Keys the built-in compose template writes for a service; `extra` may not repeat
+# them (a duplicate mapping key is a YAML error in Compose v2, a silent override in v1).
+RENDERED_SERVICE_KEYS = frozenset({
+    "image", "command", "environment", "volumes", "restart", "mem_limit", "cpus", "healthcheck",
+    "depends_on", "devices", "group_add", "user", "privileged", "profiles", "deploy", "labels",
+    "network_mode", "networks", "shm_size", "logging",
+})
+
+GPU_ENV = {"NVIDIA_VISIBLE_DEVICES": "all", "NVIDIA_DRIVER_CAPABILITIES": "compute,utility,video"}
+GPU_SHM_BYTES = 1 << 30          # the practices doc: ~1 GB of /dev/shm for GPU services
+FASTDDS_PARTICIPANT_SLOTS = 4    # Fast DDS's maxInitialPeersRange: participant ids 0..3 per peer
+
+_SERVICE_NAME = re.compile(r"[a-zA-Z0-9][a-zA-Z0-9_.-]*\Z")
+_ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+_HEX4 = re.compile(r"[0-9a-fA-F]{4}\Z")
+MIN_LEAK_CHECK = 4               # shorter vault values would match innocent text
+# Characters YAML may not carry raw inside a quoted scalar (non-printable, or read as line breaks).
+_YAML_UNSAFE = re.compile("[\x7f-\x9f\u2028\u2029\ufeff\ud800-\udfff]")
+_LINE_BREAKS = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def _int_at_least(low: int) -> Any:
+    return lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= low
+
+
+# Inventory (or fleet `vars:`) variables the templates read: name -> (default, check, what it must be).
+TUNABLES: dict[str, tuple[Any, Any, str]] = {
+    "dds_lease_duration": (10, _int_at_least(1), "whole seconds"),
+    "dds_lease_announcement": (3, _int_at_least(1), "whole seconds"),
+    "dds_socket_buffer": ("10MB", lambda v: bool(re.fullmatch(r"\d+(\.\d+)?\s*([kKMG]i?)?B?", str(v))),
+                          "a size like 10MB or 8MiB"),
+    "logrotate_size": ("50M", lambda v: bool(re.fullmatch(r"\d+[kMG]?", str(v))), "a size like 50M"),
+    "logrotate_keep": (5, _int_at_least(0), "a number of rotated files"),
+}
+
+
+class _Rejected(ValueError):
+    """A value no quoting can carry safely into the file (raised inside filters)."""
+
+
+# ------------------------------------------------------------------- filters
+
+def yaml_str(value: Any) -> str:
+    """A double-quoted YAML scalar that parses back to str(value), whatever it holds."""
+    text = json.dumps(str(value), ensure_ascii=False)   # JSON strings are YAML double-quoted scalars
+    return _YAML_UNSAFE.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
+
+
+_YAML11_WORDS = frozenset("y n yes no true false on off null ~".split())
+
+
+def yaml_key(value: Any) -> str:
+    """A mapping key: bare when YAML 1.1 and 1.2 both read it as this plain string, else quoted."""
+    text = str(value)
+    if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]*", text) and text.lower() not in _YAML11_WORDS:
+        return text
+    return yaml_str(text)
+
+
+def compose_str(value: Any) -> str:
+    """yaml_str for compose.yml, where `$` starts an interpolation: fleet values are literal."""
+    return yaml_str(str(value).replace("$", "$$"))
+
+
+def compose_list(values: Iterable[Any]) -> str:
+    return "[" + ", ".join(compose_str(v) for v in values) + "]"
+
+
+def env_ref(name: str) -> str:
+    """A compose reference to a .env variable that fails loudly when the variable is missing."""
+    return yaml_str(f"${{{name}:?{name} must be set in .env}}")
+
+
+def xml(value: Any) -> str:
+    """Escape for XML text and attribute values."""
+    text = str(value)
+    if _LINE_BREAKS.search(text.replace("\t", "")) or _YAML_UNSAFE.search(text):
+        raise _Rejected(f"{text!r} contains a control character and cannot go into an XML file")
+    return _xml_escape(text, {'"': "&quot;", "'": "&apos;"})
+
+
+def env_value(value: Any) -> str:
+    """Quote for .env so Compose v2 (compose-go) and v1 (python-dotenv) read back the same string.
+
+    Single quotes: neither interpolates `$` nor reads escapes, except that v1 turns `\\\\` and
+    `\\'` into one character and v2 does not, so those sequences are refused rather than
+    read two ways.
+    """
+    text = str(value)
+    if re.fullmatch(r"[A-Za-z0-9_./:@%+,=-]*", text):
+        return text
+    if "'" in text or _LINE_BREAKS.search(text.replace("\t", "")) or "\\\\" in text or text.endswith("\\"):
+        raise _Rejected("a .env value may not contain a newline, a control character, a single quote, "
+                        "a double backslash or a trailing backslash (Compose v1 and v2 would read it differently)")
+    return f"'{text}'"
+
+
+def udev_value(value: Any) -> str:
+    text = str(value)
+    if '"' in text or "\\" in text or _LINE_BREAKS.search(text):
+        raise _Rejected(f"{text!r} cannot go into a udev rule (no quotes, backslashes or control characters)")
+    return text
+
+
+def logrotate_path(value: Any) -> str:
+    text = str(value)
+    if '"' in text or "{" in text or "}" in text or _LINE_BREAKS.search(text):
+        raise _Rejected(f"{text!r} cannot go into a logrotate config (no quotes, braces or control characters)")
+    return f'"{text}"' if any(c.isspace() for c in text) else text
+
+
+def comment(value: Any) -> str:
+    """One line of text safe inside a `#` or XML comment."""
+    return _LINE_BREAKS.sub("?", str(value)).replace("--", "- -")
+
+
+FILTERS = {
+    "yaml_str": yaml_str, "yaml_key": yaml_key, "compose_str": compose_str, "compose_list": compose_list, "env_ref": env_ref,
+    "xml": xml, "env_value": env_value, "udev_value": udev_value, "logrotate_path": logrotate_path,
+    "comment": comment,
+}
+
+
+# ------------------------------------------------------------------ context
+
+@dataclass(frozen=True)
+class HealthView:
+    test: tuple[str, ...]
+    interval: str
+    timeout: str
+    retries: int
+    start_period: str
+
+
+@dataclass(frozen=True)
+class ServiceView:
+    """One compose service as the templates see it: everything resolved for this robot."""
+
+    name: str
+    image: str                              # full ref, as in RenderedRelease.images
+    command: tuple[str, ...] | None
+    environment: tuple[tuple[str, str], ...]   # sorted, non-secret, literal values
+    secrets: tuple[str, ...]                # env names whose values live in .env
+    restart: str
+    mem_limit: str | None
+    cpus: float | None
+    healthcheck: HealthView | None
+    depends_on: tuple[str, ...]
+    devices: tuple[str, ...]                # "/dev/x:/dev/x"
+    group_add: tuple[str, ...]
+    user: str | None
+    privileged: bool
+    profiles: tuple[str, ...]
+    gpu: bool                               # service wants a GPU AND the robot has one
+    shm_size: str
+    log_dir: str                            # relative to the release dir
+    labels: tuple[tuple[str, str], ...]
+    extra_yaml: str                         # `extra`, YAML-dumped and indented for the service block
+
+
+@dataclass(frozen=True)
+class UdevView:
+    """One udev rule: a host.udev entry, checked, with its group filled in from the subsystem."""
+
+    subsystem: str
+    vendor: str
+    product: str
+    serial: str | None
+    symlink: str
+    group: str | None
+    mode: str
+
+
+@dataclass(frozen=True)
+class _Static:
+    """The host-independent part of a service, computed once per Renderer."""
+
+    service: Service
+    image: str
+    environment: Mapping[str, str]          # plain values
+    templated: Mapping[str, jinja2.Template]  # values with {{ }} rendered per robot
+    secrets: tuple[tuple[str, str], ...]    # (env name, host var), sorted
+    healthcheck: HealthView | None
+    labels: tuple[tuple[str, str], ...]
+    extra_yaml: str
+
+
+class _NoAliasDumper(yaml.SafeDumper):
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
+def _size_bytes(text: str) -> int:
+    try:
+        return size_bytes(text)
+    except ValueError:
+        return 0
+
+
+def _host_where(host: Host) -> tuple[str, int | None]:
+    file, _, line = host.source.rpartition(":")
+    return (file, int(line)) if file and line.isdigit() else (host.source or "inventory", None)
+
+
+def _host_problem(host: Host, key: str, message: str) -> Problem:
+    file, line = _host_where(host)
+    return Problem(file, line, key, f"robot {host.name}: {message}")
+
+
+def _device_group(path: str, logical: str, udev: UdevDevice | None) -> str | None:
+    """The group a container user needs for a device node: dialout for serial, video for cameras."""
+    subsystem = ""
+    if udev is not None:
+        if udev.group:
+            return udev.group
+        subsystem = udev.subsystem
+    base = path.rsplit("/", 1)[-1]
+    hints = f"{path} {logical}".lower()
+    if subsystem == "tty" or base.startswith("tty") or "/serial/" in path or "serial" in logical.lower():
+        return "dialout"
+    if subsystem == "video4linux" or base.startswith("video") or "/v4l/" in path or "camera" in hints:
+        return "video"
+    return None
+
+
+# ----------------------------------------------------------------- renderer
+
+class Renderer:
+    """Compiles the templates of one FleetSpec once; `render(host)` is then cheap and pure."""
+
+    def __init__(self, spec: FleetSpec) -> None:
+        self.spec = spec
+        if spec.rmw not in RMW:
+            raise RenderError([self._problem(("ros", "rmw"), f"unknown rmw {spec.rmw!r} (use {' or '.join(RMW)})")])
+        if spec.network_mode not in ("host", "bridge"):
+            raise RenderError([self._problem(("ros", "network_mode"),
+                                             f"unknown network_mode {spec.network_mode!r} (use host or bridge)")])
+        self.rmw_implementation, self.dds_file, dds_env, dds_value = RMW[spec.rmw]
+        self.dds_env = {dds_env: dds_value}
+        self.override = self._override_dir()
+        self.env = self._environment()
+        outputs = {COMPOSE_FILE: "compose.yml.j2", ENV_FILE: "env.j2", self.dds_file: f"{self.dds_file}.j2",
+                   LOGROTATE_FILE: "logrotate.conf.j2", UDEV_FILE: "udev.rules.j2"}
+        outputs.update(self._user_only_templates(outputs.values()))
+        self.templates = {out: self._compile(name) for out, name in sorted(outputs.items())}
+        self.statics = tuple(self._static(s) for s in spec.services)
+        self.images = tuple(sorted({s.image for s in self.statics}))
+        self.image_vars = self._image_vars()
+
+    # --- setup --------------------------------------------------------------
+
+    def _problem(self, keypath: tuple[Any, ...], message: str) -> Problem:
+        """A problem in the fleet file, at the line of the key when the loader recorded it."""
+        return Doc(self.spec.path, None, dict(self.spec.lines)).problem(keypath, message)
+
+    def _override_dir(self) -> Path | None:
+        if not self.spec.templates:
+            return None
+        path = Path(self.spec.templates)
+        if not path.is_absolute():
+            path = Path(self.spec.path).resolve().parent / path
+        if not path.is_dir():
+            raise RenderError([self._problem(("templates",), f"template directory {path} does not exist")])
+        return path
+
+    def _environment(self) -> jinja2.Environment:
+        loaders = [jinja2.FileSystemLoader(str(self.override))] if self.override else []
+        loaders.append(jinja2.FileSystemLoader(str(TEMPLATE_DIR)))
+        env = jinja2.Environment(
+            loader=jinja2.ChoiceLoader(loaders), undefined=jinja2.StrictUndefined, autoescape=False,
+            trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True, auto_reload=False)
+        env.filters.update(FILTERS)
+        return env
+
+    def _user_only_templates(self, builtin: Iterable[str]) -> dict[str, str]:
+        """Extra `NAME.j2` files in the override dir render to NAME (`_*.j2` are partials)."""
+        if self.override is None:
+            return {}
+        known = set(builtin) | {"fastdds.xml.j2", "cyclonedds.xml.j2"}
+        return {p.name[:-3]: p.name for p in sorted(self.override.glob("*.j2"))
+                if p.is_file() and p.name not in known and not p.name.startswith("_")}
+
+    def _compile(self, name: str) -> jinja2.Template:
+        try:
+            return self.env.get_template(name)
+        except jinja2.TemplateSyntaxError as exc:
+            raise RenderError([Problem(exc.filename or name, exc.lineno, "", f"template syntax error: {exc.message}")]) from exc
+        except jinja2.TemplateNotFound as exc:
+            raise RenderError([self._problem(("templates",), f"template {exc.name} not found")]) from exc
+
+    def _static(self, svc: Service) -> _Static:
+        spec, where = self.spec, ("services", svc.name)
+        problems: list[Problem] = []
+        if not _SERVICE_NAME.match(svc.name):
+            problems.append(self._problem(where, "a service name may hold only letters, digits, '_', '.', '-'"))
+        plain: dict[str, str] = {}
+        templated: dict[str, jinja2.Template] = {}
+        for key, value in svc.environment.items():
+            if not key or "=" in key or _LINE_BREAKS.search(key):
+                problems.append(self._problem(where + ("environment",), f"invalid variable name {key!r}"))
+            elif "{{" in str(value) or "{%" in str(value):
+                try:
+                    templated[key] = self.env.from_string(str(value))
+                except jinja2.TemplateSyntaxError as exc:
+                    problems.append(self._problem(where + ("environment", key), f"template syntax error: {exc.message}"))
+            else:
+                plain[key] = str(value)
+        for name in svc.secret_env:
+            if not _ENV_NAME.match(name):
+                problems.append(self._problem(where + ("secrets",), f"invalid variable name {name!r}"))
+        clash = sorted(RENDERED_SERVICE_KEYS & set(svc.extra))
+        if clash:
+            problems.append(self._problem(where + ("compose",),
+                                    f"{', '.join(clash)} {'is' if len(clash) == 1 else 'are'} rendered by rosdeploy; "
+                                    "set the fleet-file key instead of `compose:`"))
+        if problems:
+            raise RenderError(problems)
+        hc = svc.healthcheck
+        extra = ""
+        if svc.extra:
+            dumped = yaml.dump(dict(svc.extra), Dumper=_NoAliasDumper, sort_keys=True,
+                               default_flow_style=False, allow_unicode=True, width=1 << 16)
+            extra = "".join(f"    {line}\n" for line in dumped.splitlines())
+        return _Static(
+            service=svc, image=spec.image_ref(svc), environment=plain, templated=templated,
+            secrets=tuple(sorted(svc.secret_env.items())),
+            healthcheck=HealthView(tuple(hc.test), hc.interval, hc.timeout, hc.retries, hc.start_period) if hc else None,
+            labels=(("io.rosdeploy.project", spec.project), ("io.rosdeploy.service", svc.name),
+                    ("io.rosdeploy.version", spec.version)),
+            extra_yaml=extra)
+
+    def _image_vars(self) -> tuple[tuple[str, str], ...]:
+        owners: dict[str, str] = {}
+        for st in self.statics:
+            var = image_var(st.service.name)
+            if var in owners:
+                raise RenderError([self._problem(("services", st.service.name),
+                                           f"services {owners[var]} and {st.service.name} both map to {var} in .env; "
+                                           "rename one")])
+            owners[var] = st.service.name
+        return tuple(sorted((image_var(st.service.name), st.image) for st in self.statics))
+
+    # --- per robot ----------------------------------------------------------
+
+    def render(self, host: Host) -> RenderedRelease:
+        problems: list[Problem] = []
+        context = self._context(host, problems)
+        if problems:
+            raise RenderError(problems)
+        files = sorted((self._file(out, tpl, context, host) for out, tpl in self.templates.items()),
+                       key=lambda f: f.name)
+        self._check_leaks(host, files)
+        return RenderedRelease(host=host.name, project=self.spec.project, version=self.spec.version,
+                               files=tuple(files), images=self.images,
+                               secret_values=frozenset(value for _, value in context["secrets"]))
+
+    def _context(self, host: Host, problems: list[Problem]) -> dict[str, Any]:
+        """What the templates see; every problem found on the way goes to `problems`."""
+        spec, variables = self.spec, {**self.spec.vars, **host.vars}
+        return {
+            "spec": spec, "host": host, "vars": variables, "project": spec.project, "version": spec.version,
+            "network_mode": spec.network_mode, "rmw": spec.rmw, "rmw_implementation": self.rmw_implementation,
+            "dds_file": self.dds_file, "dds_env": sorted(self.dds_env.items()),
+            "shm_size": spec.shm_size, "log_max_size": spec.log_max_size, "log_max_file": spec.log_max_file,
+            "ros_domain_id": host.ros_domain_id, "fastdds_ports": self._fastdds_ports(host.ros_domain_id),
+            "services": [self._service(st, host, variables, problems) for st in self.statics],
+            "secrets": self._secrets(host, problems), "peers": self._peers(host, variables, problems),
+            "image_vars": self.image_vars, "udev": self._udev(host, problems),
+            "logs_glob": f"{self._deploy_root(host, variables)}/{spec.project}/logs/*/*.log",
+            **self._tunables(host, variables, problems),
+        }
+
+    def _service(self, st: _Static, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> ServiceView:
+        svc = st.service
+        gpu = svc.gpu and host.gpu
+        env = dict(GPU_ENV) if gpu else {}
+        env.update(st.environment)
+        for key, template in st.templated.items():
+            env[key] = self._render_value(template, host, variables, ("services", svc.name, "environment", key), problems)
+        udev_by_path = {f"/dev/{u.symlink}": u for u in host.udev}
+        devices, groups = [], set()
+        for logical in svc.devices:
+            path = host.devices.get(logical)
+            if path is None:
+                problems.append(_host_problem(host, f"devices.{logical}",
+                                              f"service {svc.name} needs device {logical!r}, which the robot's "
+                                              f"devices map does not define"))
+                continue
+            if not path.startswith("/") or ":" in path or any(c.isspace() for c in path):
+                problems.append(_host_problem(host, f"devices.{logical}",
+                                              f"device path {path!r} must be absolute, without ':' or spaces"))
+                continue
+            devices.append(f"{path}:{path}")
+            group = _device_group(path, logical, udev_by_path.get(path))
+            if group:
+                groups.add(group)
+        shm = self.spec.shm_size
+        if gpu and _size_bytes(shm) < GPU_SHM_BYTES:
+            shm = "1g"
+        return ServiceView(
+            name=svc.name, image=st.image, command=tuple(svc.command) if svc.command is not None else None,
+            environment=tuple(sorted(env.items())), secrets=tuple(name for name, _ in st.secrets),
+            restart=svc.restart, mem_limit=svc.memory, cpus=svc.cpus, healthcheck=st.healthcheck,
+            depends_on=tuple(sorted(svc.depends_on)), devices=tuple(devices), group_add=tuple(sorted(groups)),
+            user=svc.user, privileged=svc.privileged, profiles=tuple(svc.profiles), gpu=gpu,
+            shm_size=shm, log_dir=f"../../logs/{svc.name}", labels=st.labels, extra_yaml=st.extra_yaml)
+
+    def _render_value(self, template: jinja2.Template, host: Host, variables: Mapping[str, Any],
+                      key: tuple[str, ...], problems: list[Problem]) -> str:
+        try:
+            return template.render({**variables, "vars": variables, "host": host, "inventory_hostname": host.name})
+        except jinja2.TemplateError as exc:
+            problems.append(self._problem(key, f"robot {host.name}: {exc.message}"))
+            return ""
+
+    def _secrets(self, host: Host, problems: list[Problem]) -> list[tuple[str, str]]:
+        """(env name, value) for every secret env of every service, sorted; values validated for .env."""
+        chosen: dict[str, tuple[str, str]] = {}   # env name -> (host var, service)
+        for st in self.statics:
+            for name, var in st.secrets:
+                if name in chosen and chosen[name][0] != var:
+                    problems.append(self._problem(("services", st.service.name, "secrets", name),
+                                            f"{name} is read from {chosen[name][0]} by service {chosen[name][1]} "
+                                            f"and from {var} here: one .env cannot hold both"))
+                chosen.setdefault(name, (var, st.service.name))
+        reserved = {"COMPOSE_PROJECT_NAME", "ROS_DOMAIN_ID", "RMW_IMPLEMENTATION", "ROSDEPLOY_PROJECT",
+                    "ROSDEPLOY_VERSION"} | {image_var(st.service.name) for st in self.statics}
+        out = []
+        for name, (var, service) in sorted(chosen.items()):
+            key = ("services", service, "secrets", name)
+            if name in reserved:
+                problems.append(self._problem(key, f"{name} is a variable rosdeploy writes to .env itself"))
+            elif var not in host.vars:
+                problems.append(_host_problem(host, var, f"service {service} reads secret {name} from var {var!r}, "
+                                                         "which is not defined for this robot"))
+            else:
+                value = host.vars[var]
+                try:
+                    env_value(value)
+                except _Rejected as exc:
+                    problems.append(_host_problem(host, var, f"secret {name}: {exc}"))
+                    continue
+                out.append((name, str(value)))
+        return out
+
+    def _peers(self, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> tuple[str, ...]:
+        """Unicast DDS peers: every service of this release on a bridge network, then `dds_peers`."""
+        extra = variables.get("dds_peers", [])
+        if isinstance(extra, str):
+            extra = [extra]
+        if not isinstance(extra, (list, tuple)) or not all(isinstance(p, str) and p for p in extra):
+            problems.append(_host_problem(host, "dds_peers", "dds_peers must be a list of robot addresses"))
+            return ()
+        own = [s.name for s in self.spec.services] if self.spec.network_mode == "bridge" else []
+        seen: dict[str, None] = {}
+        for peer in [*own, *extra]:
+            seen.setdefault(peer, None)
+        return tuple(seen)
+
+    @staticmethod
+    def _udev(host: Host, problems: list[Problem]) -> tuple[UdevView, ...]:
+        out = []
+        for u in sorted(host.udev, key=lambda u: u.symlink):
+            key = f"udev.{u.symlink}"
+            bad = [f"{what} {value!r}" for what, value, ok in (
+                ("vendor id", u.vendor, _HEX4.match(u.vendor)), ("product id", u.product, _HEX4.match(u.product)),
+                ("symlink", u.symlink, re.fullmatch(r"[A-Za-z0-9_.+-]+(/[A-Za-z0-9_.+-]+)*", u.symlink)),
+                ("mode", u.mode, re.fullmatch(r"0?[0-7]{3}", u.mode))) if not ok]
+            if bad:
+                problems.append(_host_problem(host, key, "invalid " + ", ".join(bad)))
+                continue
+            group = u.group or {"tty": "dialout", "video4linux": "video"}.get(u.subsystem)
+            out.append(UdevView(u.subsystem, u.vendor.lower(), u.product.lower(), u.serial, u.symlink, group, u.mode))
+        return tuple(out)
+
+    @staticmethod
+    def _fastdds_ports(domain: int) -> tuple[int, ...]:
+        """Metatraffic unicast ports (RTPS: 7400 + 250*domain + 10 + 2*participant) of participants 0..3."""
+        return tuple(7400 + 250 * domain + 10 + 2 * pid for pid in range(FASTDDS_PARTICIPANT_SLOTS))
+
+    def _deploy_root(self, host: Host, variables: Mapping[str, Any]) -> str:
+        """deploy_root made absolute for logrotate, which does not expand "~"."""
+        root = self.spec.deploy_root.rstrip("/") or "/"
+        if root != "~" and not root.startswith("~/"):
+            return root
+        home = variables.get("rosdeploy_home") or ("/root" if host.user in (None, "root") else f"/home/{host.user}")
+        return str(home).rstrip("/") + root[1:]
+
+    @staticmethod
+    def _tunables(host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> dict[str, Any]:
+        out = {}
+        for name, (default, valid, what) in TUNABLES.items():
+            value = variables.get(name, default)
+            if not valid(value):
+                problems.append(_host_problem(host, name, f"{name} must be {what}; got {value!r}"))
+            out[name] = value
+        return out
+
+    def _file(self, out: str, template: jinja2.Template, context: Mapping[str, Any], host: Host) -> RenderedFile:
+        try:
+            content = template.render(context)
+        except (jinja2.TemplateError, _Rejected) as exc:
+            raise RenderError([self._template_problem(exc, template, host)]) from exc
+        if out == ENV_FILE:
+            return RenderedFile(out, content, mode=0o600, secret=bool(context["secrets"]))
+        return RenderedFile(out, content)
+
+    def _template_problem(self, exc: Exception, template: jinja2.Template, host: Host) -> Problem:
+        """Locate an error raised while rendering: the deepest frame that is template code."""
+        file, line = template.filename or template.name or "?", None
+        names = {t.filename for t in self.templates.values()}
+        for frame, lineno in traceback.walk_tb(exc.__traceback__):
+            filename = frame.f_code.co_filename
+            if filename in names or filename.endswith(".j2"):   # included partials too
+                file, line = filename, lineno
+        message = getattr(exc, "message", None) or str(exc)
+        missing = re.search(r"'([^']+)' is undefined|has no attribute '([^']+)'", message)
+        what = f"undefined name {next(g for g in missing.groups() if g)!r}" if missing else message
+        return Problem(file, line, "", f"robot {host.name}: {what}" + (f" ({message})" if missing else ""))
+
+    @staticmethod
+    def _check_leaks(host: Host, files: Iterable[RenderedFile]) -> None:
+        """compose.yml and the other files are not secret: a vault value in them is a leak."""
+        secrets = [s for s in host.secret_values if len(s) >= MIN_LEAK_CHECK]
+        leaked = sorted({f.name for f in files if f.name != ENV_FILE for s in secrets if s in f.content})
+        if leaked:
+            raise RenderError([_host_problem(host, "", f"a secret value would be written to {name}; pass it with "
+                                                       "`secrets:` so it goes to .env only") for name in leaked])
+
+
+def image_var(service: str) -> str:
+    """.env variable holding a service's image ref: driver-node -> DRIVER_NODE_IMAGE."""
+    return re.sub(r"[^A-Za-z0-9]", "_", service).upper() + "_IMAGE"
+
+
+def render(spec: FleetSpec, host: Host) -> RenderedRelease:
+    """One-off convenience; build a Renderer once to render many robots."""
+    return Renderer(spec).render(host)
