@@ -21,6 +21,17 @@ class _Loader(yaml.SafeLoader):
     """SafeLoader that refuses duplicate mapping keys (a silent override is a bug)."""
 
 
+class Encrypted(str):
+    """A `!vault`-tagged scalar (Ansible's encrypt_string): still ciphertext.
+
+    Only the inventory decrypts these (it holds the vault); anywhere else the
+    value stays ciphertext, which is useless but harmless.
+    """
+
+
+_Loader.add_constructor("!vault", lambda loader, node: Encrypted(loader.construct_scalar(node)))
+
+
 @dataclass(frozen=True)
 class Doc:
     """A parsed YAML document plus the line of every key path in it."""

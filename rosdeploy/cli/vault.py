@@ -1,0 +1,118 @@
+"""`rosdeploy vault encrypt|decrypt|view|edit FILE`, `vault encrypt-string`: like ansible-vault."""
+from __future__ import annotations
+
+import argparse
+import getpass
+import os
+import re
+import shlex
+import subprocess
+import sys
+
+from rosdeploy import vault as vaultlib
+from rosdeploy.errors import Problem, VaultError
+from rosdeploy.output import Output
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser("vault", help="encrypt, decrypt, view or edit vault files (secrets at rest)",
+                            description="Whole files encrypted with AES-256-GCM; a group_vars/host_vars "
+                                        "file may be one. Ansible's own vault files are read too.")
+    actions = parser.add_subparsers(dest="vault_action", metavar="ACTION", required=True)
+    for name, handler, many, text in (
+            ("encrypt", _encrypt, True, "encrypt files in place (mode 0600)"),
+            ("decrypt", _decrypt, True, "decrypt files in place (mode 0600)"),
+            ("view", _view, False, "print the plaintext of a vault file"),
+            ("edit", _edit, False, "edit a vault file with $EDITOR (created if missing)")):
+        action = actions.add_parser(name, help=text, description=text)
+        action.add_argument("files", nargs="+" if many else 1, metavar="FILE")
+        _password_arg(action)
+        action.set_defaults(func=handler)
+    string = actions.add_parser("encrypt-string", help="print `NAME: !vault |` to paste into a vars file",
+                                description="Encrypt one value (from VALUE, else standard input) as an "
+                                            "inline `!vault` value, like ansible-vault encrypt_string.")
+    string.add_argument("value", nargs="?", metavar="VALUE",
+                        help="the secret; omit it to read standard input (keeps it out of shell history)")
+    string.add_argument("--name", required=True, help="the variable name, e.g. fleet_api_token")
+    _password_arg(string)
+    string.set_defaults(func=_encrypt_string)
+
+
+def _password_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--vault-password-file", metavar="FILE",
+                        help=f"file holding the vault password (or set {vaultlib.ENV_PASSWORD_FILE} "
+                             f"or {vaultlib.ENV_PASSWORD}); an executable file is run")
+
+
+def _encrypt(args: argparse.Namespace, out: Output) -> int:
+    vault = _vault(args, args.files[0], new_password=True)
+    for path in args.files:
+        vaultlib.encrypt_file(path, vault)
+        out.line(f"encrypted {path}")
+    return 0
+
+
+def _encrypt_string(args: argparse.Namespace, out: Output) -> int:
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", args.name):
+        raise VaultError([Problem("--name", None, "", f"{args.name!r} is not a variable name: use letters, "
+                                                      "digits and '_'")])
+    value = args.value
+    if value is None:
+        value = getpass.getpass("Value to encrypt: ") if sys.stdin.isatty() else sys.stdin.read().rstrip("\n")
+    if not value:
+        raise VaultError([Problem("--name", None, "", "nothing to encrypt: give VALUE or pipe it in")])
+    vault = _vault(args, args.name, new_password=True)
+    out.line(vaultlib.encrypt_string(value, vault, args.name).rstrip("\n"))
+    return 0
+
+
+def _decrypt(args: argparse.Namespace, out: Output) -> int:
+    vault = _vault(args, args.files[0])
+    for path in args.files:
+        vaultlib.decrypt_file(path, vault)
+        out.line(f"decrypted {path} (plaintext now: keep it out of version control)")
+    return 0
+
+
+def _view(args: argparse.Namespace, out: Output) -> int:
+    plaintext = vaultlib.view_file(args.files[0], _vault(args, args.files[0]))
+    out.line(plaintext.decode("utf-8", "replace").rstrip("\n"))
+    return 0
+
+
+def _edit(args: argparse.Namespace, out: Output) -> int:
+    path = args.files[0]
+    vault = _vault(args, path, new_password=not os.path.exists(path))
+    changed = vaultlib.edit_file(path, vault, lambda temp: _run_editor(temp, path))
+    out.line(f"saved {path}" if changed else f"no changes to {path}")
+    return 0
+
+
+def _vault(args: argparse.Namespace, about: str, new_password: bool = False) -> vaultlib.Vault:
+    # No prompt without a terminal: CI must fail with "how to give the password", not hang.
+    prompt = None
+    if sys.stdin.isatty():
+        prompt = _confirmed_prompt(about) if new_password else getpass.getpass
+    return vaultlib.Vault(password_file=args.vault_password_file, prompt=prompt)
+
+
+def _confirmed_prompt(path: str) -> vaultlib.Prompt:
+    def ask(_: str) -> str:
+        first = getpass.getpass("New vault password: ")
+        if first != getpass.getpass("Confirm new vault password: "):
+            raise VaultError([Problem(path, None, "", "the two passwords differ: nothing was written; "
+                                                      "run the command again")])
+        return first
+    return ask
+
+
+def _run_editor(temp: str, path: str) -> None:
+    editor = shlex.split(os.environ.get("VISUAL") or os.environ.get("EDITOR") or "vi")
+    try:
+        done = subprocess.run([*editor, temp], check=False)
+    except OSError as exc:
+        raise VaultError([Problem(path, None, "", f"cannot start the editor {editor[0]!r} ({exc.strerror}): "
+                                                  "set $EDITOR")]) from exc
+    if done.returncode != 0:
+        raise VaultError([Problem(path, None, "", f"the editor exited {done.returncode}: the vault file "
+                                                  "was left unchanged")])

@@ -1,0 +1,404 @@
+"""Secrets at rest: whole files encrypted with a password, decrypted in memory only.
+
+rosdeploy's own format is a text file, so it diffs and merges like any other:
+
+    $ROSDEPLOY_VAULT;1;AES256-GCM;scrypt;n=32768,r=8,p=1
+    <base64 of salt(16) | nonce(12) | ciphertext+tag, 64 characters a line>
+
+AES-256-GCM authenticates the ciphertext *and* the header line (as associated
+data), so a flipped bit or an edited header fails as loudly as a wrong password.
+The key comes from scrypt with a random salt per file; its cost parameters live
+in the header, so they can be raised later without breaking old files.
+n=2**15 costs ~0.1 s and 32 MiB per file: strong against guessing, yet a fleet
+with a few vault files still loads in well under a second (each file is
+decrypted once, see Vault).
+
+Ansible's `$ANSIBLE_VAULT;1.1;AES256` files (AES-CTR + HMAC-SHA256, PBKDF2 10000)
+are read too, and written back in their own format by `vault edit`, so a team's
+existing vaults keep working with both tools.
+"""
+from __future__ import annotations
+
+import base64
+import binascii
+import contextlib
+import hashlib
+import os
+import subprocess
+import tempfile
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Mapping
+
+from cryptography.exceptions import InvalidSignature, InvalidTag
+from cryptography.hazmat.primitives import hashes, hmac, padding
+from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
+from cryptography.hazmat.primitives.ciphers.aead import AESGCM
+from cryptography.hazmat.primitives.kdf.pbkdf2 import PBKDF2HMAC
+from cryptography.hazmat.primitives.kdf.scrypt import Scrypt
+
+from rosdeploy.errors import Problem, VaultError
+
+MAGIC = b"$ROSDEPLOY_VAULT;"
+ANSIBLE_MAGIC = b"$ANSIBLE_VAULT;"
+ENV_PASSWORD_FILE = "ROSDEPLOY_VAULT_PASSWORD_FILE"
+ENV_PASSWORD = "ROSDEPLOY_VAULT_PASSWORD"
+HOW_TO_GIVE_PASSWORD = (f"pass --vault-password-file FILE, or set {ENV_PASSWORD_FILE} "
+                        f"or {ENV_PASSWORD}")
+
+_SALT, _NONCE, _TAG = 16, 12, 16
+_LINE = 64
+
+
+@dataclass(frozen=True)
+class ScryptParams:
+    n: int = 2 ** 15
+    r: int = 8
+    p: int = 1
+
+    def header_field(self) -> str:
+        return f"n={self.n},r={self.r},p={self.p}"
+
+
+# A header is attacker-controlled input: refuse costs that would exhaust memory or time.
+_MAX = ScryptParams(n=2 ** 22, r=32, p=16)
+
+
+# --------------------------------------------------------------------- format
+
+def is_encrypted(data: bytes) -> bool:
+    return data.startswith(MAGIC) or data.startswith(ANSIBLE_MAGIC)
+
+
+def encrypt(plaintext: bytes, password: bytes, params: ScryptParams = ScryptParams()) -> bytes:
+    header = f"{MAGIC.decode()}1;AES256-GCM;scrypt;{params.header_field()}".encode()
+    salt, nonce = os.urandom(_SALT), os.urandom(_NONCE)
+    sealed = AESGCM(_scrypt(password, salt, params)).encrypt(nonce, plaintext, header)
+    return header + b"\n" + _wrap(base64.b64encode(salt + nonce + sealed), _LINE)
+
+
+def decrypt(data: bytes, password: bytes, source: str, *, password_source: str = "") -> bytes:
+    """Plaintext of a rosdeploy or Ansible vault file; VaultError naming `source` otherwise."""
+    header, body = _split_header(data, source)
+    if data.startswith(ANSIBLE_MAGIC):
+        return _ansible_decrypt(header, body, password, source, password_source)
+    params = _parse_header(header, source)
+    raw = _b64(body, source)
+    if len(raw) < _SALT + _NONCE + _TAG:
+        raise _error(source, "vault file is truncated: restore it from version control")
+    salt, nonce, sealed = raw[:_SALT], raw[_SALT:_SALT + _NONCE], raw[_SALT + _NONCE:]
+    try:
+        return AESGCM(_scrypt(password, salt, params)).decrypt(nonce, sealed, header.encode())
+    except InvalidTag:
+        raise _wrong_password(source, password_source) from None
+
+
+def _scrypt(password: bytes, salt: bytes, params: ScryptParams) -> bytes:
+    return Scrypt(salt=salt, length=32, n=params.n, r=params.r, p=params.p).derive(password)
+
+
+def _split_header(data: bytes, source: str) -> tuple[str, str]:
+    if not is_encrypted(data):
+        raise _error(source, "not a vault file (no $ROSDEPLOY_VAULT or $ANSIBLE_VAULT header)")
+    try:
+        text = data.decode("ascii")
+    except UnicodeDecodeError:
+        raise _error(source, "vault file holds non-ASCII bytes: it is damaged; restore it "
+                             "from version control") from None
+    header, _, body = text.partition("\n")
+    return header.strip(), "".join(body.split())
+
+
+def _parse_header(header: str, source: str) -> ScryptParams:
+    fields = header.split(";")
+    if len(fields) != 5 or fields[1] != "1":
+        raise _error(source, f"unsupported vault header {header!r}: this rosdeploy reads "
+                             "'$ROSDEPLOY_VAULT;1;AES256-GCM;scrypt;n=..,r=..,p=..'; "
+                             "a newer rosdeploy may have written it")
+    if fields[2] != "AES256-GCM" or fields[3] != "scrypt":
+        raise _error(source, f"unsupported cipher {fields[2]!r} / key derivation {fields[3]!r} "
+                             "in the vault header: only AES256-GCM with scrypt is known")
+    try:
+        values = dict(item.split("=", 1) for item in fields[4].split(","))
+        params = ScryptParams(n=int(values["n"]), r=int(values["r"]), p=int(values["p"]))
+    except (ValueError, KeyError):
+        raise _error(source, f"malformed scrypt parameters {fields[4]!r} in the vault header: "
+                             "expected n=N,r=R,p=P") from None
+    _check_params(params, source)
+    return params
+
+
+def _check_params(params: ScryptParams, source: str) -> None:
+    power_of_two = params.n > 1 and params.n & (params.n - 1) == 0
+    if not power_of_two or params.n > _MAX.n or not 1 <= params.r <= _MAX.r or not 1 <= params.p <= _MAX.p:
+        raise _error(source, f"scrypt parameters {params.header_field()} in the vault header are out of "
+                             f"range (n a power of two up to {_MAX.n}, r up to {_MAX.r}, p up to {_MAX.p}); "
+                             "the header was edited or damaged")
+
+
+def _b64(body: str, source: str) -> bytes:
+    try:
+        return base64.b64decode(body, validate=True)
+    except binascii.Error:
+        raise _error(source, "vault body is not valid base64: the file is damaged; restore it "
+                             "from version control") from None
+
+
+def _wrap(data: bytes, width: int) -> bytes:
+    return b"".join(data[i:i + width] + b"\n" for i in range(0, len(data), width))
+
+
+def _wrong_password(source: str, password_source: str) -> VaultError:
+    used = f" (the password came from {password_source})" if password_source else ""
+    return _error(source, f"cannot decrypt: wrong vault password, or the file was modified{used}; "
+                          f"check the password source: {HOW_TO_GIVE_PASSWORD}")
+
+
+def _error(source: str, message: str) -> VaultError:
+    return VaultError([Problem(source, None, "", message)])
+
+
+# --------------------------------------------------------- Ansible's 1.1 / 1.2
+
+def ansible_encrypt(plaintext: bytes, password: bytes, label: str | None = None) -> bytes:
+    """Ansible's own format, so `vault edit` of an Ansible vault leaves it readable by Ansible."""
+    salt = os.urandom(32)
+    cipher_key, mac_key, iv = _ansible_keys(password, salt)
+    padder = padding.PKCS7(128).padder()
+    padded = padder.update(plaintext) + padder.finalize()
+    encryptor = Cipher(algorithms.AES(cipher_key), modes.CTR(iv)).encryptor()
+    ciphertext = encryptor.update(padded) + encryptor.finalize()
+    mac = hmac.HMAC(mac_key, hashes.SHA256())
+    mac.update(ciphertext)
+    inner = b"\n".join(binascii.hexlify(x) for x in (salt, mac.finalize(), ciphertext))
+    header = f"$ANSIBLE_VAULT;1.2;AES256;{label}" if label else "$ANSIBLE_VAULT;1.1;AES256"
+    return header.encode() + b"\n" + _wrap(binascii.hexlify(inner), 80)
+
+
+def ansible_label(data: bytes) -> str | None:
+    """The vault-id label of a 1.2 Ansible vault file, if any."""
+    fields = data.split(b"\n", 1)[0].strip().split(b";")
+    return fields[3].decode("ascii", "replace") if len(fields) > 3 else None
+
+
+def _ansible_decrypt(header: str, body: str, password: bytes, source: str, password_source: str) -> bytes:
+    fields = header.split(";")
+    if len(fields) < 3 or fields[1] not in ("1.1", "1.2") or fields[2] != "AES256":
+        raise _error(source, f"unsupported Ansible vault header {header!r}: only 1.1/1.2 AES256 is "
+                             "read; re-encrypt it with `ansible-vault rekey`")
+    try:
+        salt, mac, ciphertext = (binascii.unhexlify(x) for x in binascii.unhexlify(body).split(b"\n", 2))
+    except (binascii.Error, ValueError):
+        raise _error(source, "Ansible vault body is malformed (expected hex): the file is damaged; "
+                             "restore it from version control") from None
+    cipher_key, mac_key, iv = _ansible_keys(password, salt)
+    check = hmac.HMAC(mac_key, hashes.SHA256())
+    check.update(ciphertext)
+    try:
+        check.verify(mac)
+    except InvalidSignature:
+        raise _wrong_password(source, password_source) from None
+    decryptor = Cipher(algorithms.AES(cipher_key), modes.CTR(iv)).decryptor()
+    unpadder = padding.PKCS7(128).unpadder()
+    try:
+        return unpadder.update(decryptor.update(ciphertext) + decryptor.finalize()) + unpadder.finalize()
+    except ValueError:
+        raise _error(source, "Ansible vault padding is invalid: the file is damaged") from None
+
+
+def _ansible_keys(password: bytes, salt: bytes) -> tuple[bytes, bytes, bytes]:
+    derived = PBKDF2HMAC(hashes.SHA256(), length=80, salt=salt, iterations=10000).derive(password)
+    return derived[:32], derived[32:64], derived[64:]
+
+
+# ------------------------------------------------------------- the password
+
+Prompt = Callable[[str], str]
+
+
+class Vault:
+    """The vault password, found on first need, and a cache of decrypted files.
+
+    Rendering 500 robots reads the same group_vars vault for each of them: the
+    cache (keyed by the ciphertext's hash) makes that one scrypt, not 500.
+    Thread-safe: the rollout renders robots from many threads.
+    """
+
+    def __init__(self, password: bytes | None = None, *, password_file: str | None = None,
+                 env: Mapping[str, str] | None = None, prompt: Prompt | None = None) -> None:
+        self._given = password
+        self._password_file = password_file
+        self._env = dict(os.environ if env is None else env)
+        self._prompt = prompt
+        self._password: bytes | None = None
+        self._source = "the caller" if password is not None else ""
+        self._cache: dict[bytes, bytes] = {}
+        self._lock = threading.Lock()
+
+    @property
+    def password_source(self) -> str:
+        return self._source
+
+    def password(self, needed_by: str) -> bytes:
+        """The password, asking its sources in order the first time it is needed."""
+        with self._lock:
+            if self._password is None:
+                self._password, self._source = self._find_password(needed_by)
+            return self._password
+
+    def decrypt(self, data: bytes, source: str) -> bytes:
+        key = hashlib.sha256(data).digest()
+        with self._lock:
+            if key in self._cache:
+                return self._cache[key]
+        plaintext = decrypt(data, self.password(source), source, password_source=self._source)
+        with self._lock:
+            self._cache[key] = plaintext
+        return plaintext
+
+    def encrypt(self, plaintext: bytes, needed_by: str) -> bytes:
+        return encrypt(plaintext, self.password(needed_by))
+
+    def read(self, path: str, data: bytes) -> tuple[bytes, bool]:
+        """(plaintext, was_encrypted) of a file's bytes."""
+        if not is_encrypted(data):
+            return data, False
+        return self.decrypt(data, path), True
+
+    def _find_password(self, needed_by: str) -> tuple[bytes, str]:
+        if self._given is not None:
+            return self._given, "the caller"
+        if self._password_file:
+            return read_password_file(self._password_file), f"--vault-password-file {self._password_file}"
+        if self._env.get(ENV_PASSWORD_FILE):
+            path = self._env[ENV_PASSWORD_FILE]
+            return read_password_file(path), f"{ENV_PASSWORD_FILE}={path}"
+        if self._env.get(ENV_PASSWORD):
+            return self._env[ENV_PASSWORD].rstrip("\r\n").encode(), ENV_PASSWORD
+        if self._prompt is not None:
+            typed = self._prompt("Vault password: ")
+            if typed:
+                return typed.encode(), "the prompt"
+        raise _error(needed_by, f"this file is vault-encrypted and no vault password was given: "
+                                f"{HOW_TO_GIVE_PASSWORD}")
+
+
+def read_password_file(path: str) -> bytes:
+    """A password file's content; an executable file is run and its stdout used (like Ansible)."""
+    path = os.path.expanduser(path)
+    if not os.path.isfile(path):
+        raise _error(path, "vault password file not found: check --vault-password-file / "
+                           f"{ENV_PASSWORD_FILE}")
+    raw = _run_password_script(path) if os.access(path, os.X_OK) else _read_file(path)
+    # Ansible strips surrounding whitespace too, so one password file serves both tools.
+    password = raw.strip()
+    if not password:
+        raise _error(path, "vault password file is empty: put the password on its first line")
+    return password
+
+
+def _run_password_script(path: str) -> bytes:
+    try:
+        done = subprocess.run([path], stdout=subprocess.PIPE, stderr=subprocess.PIPE, timeout=120, check=False)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise _error(path, f"the vault password file is executable but could not be run ({exc}); "
+                           "remove its execute bit if it is a plain password file") from exc
+    if done.returncode != 0:
+        tail = done.stderr.decode("utf-8", "replace").strip()[-200:]
+        raise _error(path, f"the vault password script exited {done.returncode}: {tail}")
+    return done.stdout
+
+
+# ------------------------------------------------------------- files in place
+
+
+def encrypt_file(path: str, vault: Vault) -> None:
+    data = _read_file(path)
+    if is_encrypted(data):
+        raise _error(path, "already vault-encrypted: use `rosdeploy vault edit` to change it")
+    write_private(path, vault.encrypt(data, path))
+
+
+def decrypt_file(path: str, vault: Vault) -> None:
+    write_private(path, view_file(path, vault))
+
+
+def view_file(path: str, vault: Vault) -> bytes:
+    data = _read_file(path)
+    if not is_encrypted(data):
+        raise _error(path, "not vault-encrypted (no $ROSDEPLOY_VAULT or $ANSIBLE_VAULT header)")
+    return vault.decrypt(data, path)
+
+
+def edit_file(path: str, vault: Vault, run_editor: Callable[[str], None]) -> bool:
+    """Decrypt to a private temp file, let `run_editor` change it, re-encrypt; True if it changed.
+
+    A missing file is created. An Ansible vault stays an Ansible vault, so Ansible
+    can still read it. The plaintext only ever sits in a 0600 file that is
+    overwritten before it is removed, whatever the editor does.
+    """
+    original = _read_file(path) if os.path.exists(path) else None
+    if original is not None and not is_encrypted(original):
+        raise _error(path, "not vault-encrypted: run `rosdeploy vault encrypt` on it first")
+    plaintext = vault.decrypt(original, path) if original is not None else b""
+    fd, temp = tempfile.mkstemp(prefix="rosdeploy-vault-", suffix=Path(path).suffix)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(plaintext)
+        run_editor(temp)
+        edited = _read_file(temp)
+    finally:
+        _shred(temp)
+    if original is not None and edited == plaintext:
+        return False
+    if original is not None and original.startswith(ANSIBLE_MAGIC):
+        sealed = ansible_encrypt(edited, vault.password(path), ansible_label(original))
+    else:
+        sealed = vault.encrypt(edited, path)
+    write_private(path, sealed)
+    return True
+
+
+def encrypt_string(value: str, vault: Vault, name: str) -> str:
+    """`name: !vault |` + indented ciphertext, to paste into a vars file (Ansible's encrypt_string)."""
+    sealed = vault.encrypt(value.encode("utf-8"), name).decode("ascii")
+    return f"{name}: !vault |\n" + "".join(f"  {line}\n" for line in sealed.splitlines())
+
+
+def write_private(path: str, data: bytes) -> None:
+    """Replace `path` atomically (temp file + rename in the same directory), mode 0600."""
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, temp = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.chmod(temp, 0o600)
+        os.replace(temp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(temp)
+        raise _error(path, f"cannot write: {exc.strerror}") from exc
+
+
+def _read_file(path: str) -> bytes:
+    try:
+        with open(path, "rb") as handle:
+            return handle.read()
+    except OSError as exc:
+        raise _error(path, f"cannot read: {exc.strerror}") from exc
+
+
+def _shred(path: str) -> None:
+    # Best effort: overwrite before unlinking so the plaintext is not left in free
+    # blocks of a plain filesystem (journaling and SSDs may still keep copies).
+    with contextlib.suppress(OSError):
+        size = os.path.getsize(path)
+        with open(path, "r+b") as handle:
+            handle.write(b"\0" * size)
+            handle.flush()
+            os.fsync(handle.fileno())
+    with contextlib.suppress(OSError):
+        os.unlink(path)
