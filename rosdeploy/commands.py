@@ -122,7 +122,7 @@ def unlock(root: str, project: str, token: str) -> Command:
 
 
 UPLOAD_SCRIPT = _PROLOGUE + r'''
-release=$1
+release=$1; shift
 tmp=$dir/releases/.tmp-$release-$$
 rm -rf "$tmp"; mkdir -p "$tmp"
 tar -x -f - -C "$tmp" --no-same-owner || { rm -rf "$tmp"; echo "upload incomplete: tar failed" >&2; exit 5; }
@@ -131,12 +131,18 @@ chmod 0600 "$tmp/.env" 2>/dev/null || true
 # replace it whole so a half-written one from a cut connection never survives.
 rm -rf "$dir/releases/$release"
 mv "$tmp" "$dir/releases/$release"
+# ROS log dirs survive releases. Created here, not by Docker (which would make them
+# root-owned and unwritable for a non-root container user whose uid the robot does
+# not know): sticky and world-writable, like /tmp.
+for service in "$@"; do
+  [ -d "$dir/logs/$service" ] || { mkdir -p "$dir/logs/$service" && chmod 1777 "$dir/logs/$service"; }
+done
 '''
 
 
-def upload(root: str, project: str, release: str, tarball: bytes) -> Command:
+def upload(root: str, project: str, release: str, tarball: bytes, services: tuple[str, ...] = ()) -> Command:
     """Files go to a temporary dir and are renamed into place: never half-written."""
-    return script("upload", UPLOAD_SCRIPT, root, project, release, stdin=tarball)
+    return script("upload", UPLOAD_SCRIPT, root, project, release, *services, stdin=tarball)
 
 
 PULL_SCRIPT = r'''

@@ -234,8 +234,9 @@ def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: di
         return run.result(FAILED, running_release=old, reason="pull failed, nothing changed: "
                           + _pull_errors(pulled.stdout, run.spec.registry), **base)
     with run.step("upload"):
-        run.t.check(commands.upload(run.root, run.spec.project, new, _tarball(run, release, pulled.stdout)),
-                    "upload")
+        services = tuple(s.name for s in run.spec.services)
+        run.t.check(commands.upload(run.root, run.spec.project, new, _tarball(run, release, pulled.stdout),
+                                    services), "upload")
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before switching", **base)
     started, output = run.up(new, state.flavor or "v2")

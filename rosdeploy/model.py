@@ -85,6 +85,7 @@ class Service:
     memory: str | None = None               # mem_limit, e.g. "512m"
     cpus: float | None = None
     healthcheck: HealthCheck | None = None
+    healthcheck_from_image: bool = False    # `healthcheck: image`: trust the image's own HEALTHCHECK
     depends_on: tuple[str, ...] = ()        # waits for service_healthy
     topics: tuple[Topic, ...] = ()          # expected ROS topics (health gate)
     user: str | None = None                 # container user; None: the image's own (should be non-root)
@@ -143,6 +144,8 @@ class FleetSpec:
     rollout: RolloutPolicy = RolloutPolicy()
     rollback: RollbackPolicy = RollbackPolicy()
     vars: Mapping[str, Any] = field(default_factory=frozen_map)  # extra template vars
+    # line of every key path in the fleet file, so checks run after loading can say file:line
+    lines: Mapping[tuple, int] = field(default_factory=frozen_map, repr=False, compare=False)
 
     def service(self, name: str) -> Service:
         return next(s for s in self.services if s.name == name)

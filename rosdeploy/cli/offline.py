@@ -1,8 +1,154 @@
-"""Subcommands of this area; see rosdeploy/cli/__init__.py."""
+"""Commands that never touch a robot: validate, render, check.
+
+    validate FLEET   is this fleet deployable? (exit 0 with one OK line, or 2 and every problem)
+    render FLEET     write what each robot would receive into --out DIR, print digests
+    check FLEET      the deployment checklist: every finding with severity, rule and fix
+"""
 from __future__ import annotations
 
 import argparse
+import getpass
+import os
+from pathlib import Path
+from typing import Any, Sequence
+
+from rosdeploy import checks
+from rosdeploy.cli.common import add_fleet_args
+from rosdeploy.errors import EXIT_INPUT, EXIT_OK, InputError, Problem
+from rosdeploy.model import Host, RenderedRelease
+from rosdeploy.output import Output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    pass
+    p = sub.add_parser("validate", help="check the fleet file and inventory; exit 2 on any error",
+                       description="Load the fleet file and inventory and run every error-level check. "
+                                   "Nothing is contacted.")
+    _common(p)
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("render", help="write each robot's files into a folder, print their digests",
+                       description="Render compose.yml, .env, the DDS profile, logrotate and udev rules "
+                                   "into DIR/<robot>/ exactly as a deploy would upload them.")
+    _common(p)
+    p.add_argument("-o", "--out", required=True, metavar="DIR", help="folder to write DIR/<robot>/<file> into")
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("check", help="run the deployment checklist; exit 2 if any error",
+                       description="Every rule of the ROS 2 deployment checklist over the fleet file, the "
+                                   "inventory and each robot's rendered files.")
+    _common(p)
+    p.set_defaults(func=cmd_check)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    add_fleet_args(p)
+    # SUPPRESS: `rosdeploy --json check F` and `rosdeploy check F --json` both work.
+    p.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="print one JSON document")
+
+
+def _load(args: argparse.Namespace, out: Output) -> tuple[Any, tuple[Host, ...]]:
+    from rosdeploy.project import load_project
+
+    project = load_project(args.fleet, inventory=args.inventory, version=args.release_version,
+                           vault_password_file=args.vault_password_file,
+                           prompt=getpass.getpass if out.interactive else None)
+    out.mask(project.secret_values)
+    return project, project.targets(args.limit)
+
+
+# ---------------------------------------------------------------- validate
+
+def cmd_validate(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy.project import validate
+
+    project, hosts = _load(args, out)
+    problems = validate(project, hosts)
+    errors = [p for p in problems if p.severity == "error"]
+    if out.as_json:
+        out.document({"ok": not errors, "fleet": args.fleet, "project": project.spec.project,
+                      "version": project.spec.version, "robots": [h.name for h in hosts],
+                      "problems": [problem_json(p) for p in problems]})
+    else:
+        _print_problems(out, problems)
+    if errors:
+        out.error(f"{len(errors)} error(s): not deployable; fix the files above and run validate again")
+        return EXIT_INPUT
+    spec = project.spec
+    warned = len(problems) - len(errors)
+    out.line(f"OK {args.fleet}: project {spec.project} version {spec.version}, {len(spec.services)} service(s), "
+             f"{len(hosts)} robot(s)" + (f", {warned} warning(s)" if warned else ""))
+    return EXIT_OK
+
+
+def _print_problems(out: Output, problems: Sequence[Problem]) -> None:
+    for p in problems:
+        (out.error if p.severity == "error" else out.warn)(f"{p.severity}: {p}")
+
+
+# ------------------------------------------------------------------ render
+
+def cmd_render(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy.project import render_blockers, render_hosts
+
+    project, hosts = _load(args, out)
+    releases, problems = render_hosts(project, hosts)
+    problems = render_blockers(project, hosts) + problems
+    if problems:
+        raise InputError(problems)
+    root = Path(args.out)
+    written = [write_release(root / name, release) for name, release in releases.items()]
+    if out.as_json:
+        out.document({"out": str(root), "robots": [_release_json(r, d) for r, d in zip(releases.values(), written)]})
+        return EXIT_OK
+    out.table(["ROBOT", "RELEASE", "DIGEST", "FILES"],
+              [(r.host, r.release_id, r.digest[:16], len(r.files)) for r in releases.values()])
+    out.line(f"wrote {len(releases)} robot(s) to {root}/<robot>/")
+    return EXIT_OK
+
+
+def write_release(folder: Path, release: RenderedRelease) -> Path:
+    """Every file of the release under `folder`, with its mode (.env stays 0600 whatever the umask)."""
+    for f in release.files:
+        target = folder / f.name
+        if Path(f.name).is_absolute() or ".." in Path(f.name).parts:
+            raise InputError([Problem(f.name, None, "", "a rendered file name leaves the release folder; "
+                                                        "rename the template")])
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, f.mode)
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            os.fchmod(handle.fileno(), f.mode)   # O_CREAT's mode is cut by the umask; an old file kept its own
+            handle.write(f.content)
+    return folder
+
+
+def _release_json(release: RenderedRelease, folder: Path) -> dict[str, Any]:
+    return {"robot": release.host, "release": release.release_id, "digest": release.digest, "dir": str(folder),
+            "images": list(release.images),
+            "files": [{"name": f.name, "mode": f"{f.mode:04o}"} for f in release.files]}
+
+
+# ------------------------------------------------------------------- check
+
+def cmd_check(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy.project import findings
+
+    project, hosts = _load(args, out)
+    problems = findings(project, hosts)
+    errors = sum(p.severity == "error" for p in problems)
+    if out.as_json:
+        out.document({"ok": not errors, "fleet": args.fleet, "robots": [h.name for h in hosts],
+                      "findings": [problem_json(p) for p in problems]})
+        return EXIT_INPUT if errors else EXIT_OK
+    colors = {"error": "red", "warning": "yellow", "info": "dim"}
+    for p in problems:   # the findings are this command's output: stdout, so `check > report.txt` works
+        out.line(out.paint(f"{p.severity}[{p.rule or 'input'}] {p}", colors.get(p.severity, "bold")))
+    counts = {s: sum(p.severity == s for p in problems) for s in checks.SEVERITIES}
+    tally = ", ".join(f"{n} {s}(s)" for s, n in counts.items() if n) or "no findings"
+    out.line(f"{'FAIL' if errors else 'OK'} {args.fleet}: {len(hosts)} robot(s), {tally}")
+    return EXIT_INPUT if errors else EXIT_OK
+
+
+def problem_json(p: Problem) -> dict[str, Any]:
+    rule = checks.RULES.get(p.rule)
+    return {"severity": p.severity, "rule": p.rule or None, "file": p.file, "line": p.line, "key": p.key,
+            "message": p.message, "fix": rule.fix if rule else None}

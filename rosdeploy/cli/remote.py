@@ -12,8 +12,9 @@ from rosdeploy.cli import report
 from rosdeploy.cli.common import add_fleet_args
 from rosdeploy.deploy import RunContext
 from rosdeploy.errors import EXIT_ABORTED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, EXIT_PARTIAL, InputError
-from rosdeploy.model import Host, RenderedRelease, RolloutPolicy
+from rosdeploy.model import Host, RolloutPolicy
 from rosdeploy.output import Output, confirm
+from rosdeploy.project import gate, load_project, prepare
 from rosdeploy.rollout import apply_fleet, parallel, rollback_fleet
 from rosdeploy.transport import SSHOptions, local_user_at_host
 from rosdeploy.views import history_host, plan_host, status_host
@@ -61,22 +62,20 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
 
 # ----------------------------------------------------------------- loading
 
-def load(args: argparse.Namespace, out: Output, render: bool = True):
+def load(args: argparse.Namespace, out: Output):
     """Fleet file + inventory + targets (+ releases), validated: input errors stop here, before any robot."""
-    from rosdeploy.project import load_project, validate
-    from rosdeploy.render import Renderer
-
     project = load_project(args.fleet, inventory=args.inventory, version=getattr(args, "release_version", None),
                            vault_password_file=args.vault_password_file,
-                           prompt=(lambda: getpass.getpass("Vault password: ")) if out.interactive else None)
+                           prompt=getpass.getpass if out.interactive else None)
     hosts = project.targets(args.limit)
-    for host in hosts:
-        out.mask(host.secret_values)
-    problems = validate(project, hosts)
+    out.mask(project.secret_values)
+    releases, problems = prepare(project, hosts)
+    problems = gate(problems)
     errors = [p for p in problems if p.severity == "error"]
     if errors:
         raise InputError(errors)
-    releases = {h.name: Renderer(project.spec).render(h) for h in hosts} if render else {}
+    for warning in problems:
+        out.warn(f"{warning.severity}: {warning}")
     return project, hosts, releases
 
 
@@ -126,7 +125,7 @@ def _policy(policy: RolloutPolicy, args: argparse.Namespace) -> RolloutPolicy:
 
 
 def cmd_rollback(args: argparse.Namespace, out: Output) -> int:
-    project, hosts, _ = load(args, out, render=False)
+    project, hosts, _ = load(args, out)
     target = args.to or "their previous release"
     if not _confirmed(args, out, f"Roll back {len(hosts)} robot(s) to {target}?"):
         return EXIT_INPUT
@@ -160,7 +159,7 @@ def cmd_plan(args: argparse.Namespace, out: Output) -> int:
 
 
 def cmd_history(args: argparse.Namespace, out: Output) -> int:
-    project, hosts, _ = load(args, out, render=False)
+    project, hosts, _ = load(args, out)
     rows = _each(args, project.spec, hosts, lambda ctx, h: (h.name, *history_host(ctx, h)))
     report.history(out, rows, args.n)
     return EXIT_OK if all(r[1] for r in rows) else EXIT_PARTIAL

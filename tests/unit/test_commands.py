@@ -125,3 +125,11 @@ def test_every_builder_passes_values_as_arguments(builder) -> None:
     assert cmd.argv[:2] == ("sh", "-c") and cmd.argv[3] == commands.PROG
     script_text = cmd.argv[2]
     assert "reboot" not in script_text and "rm -rf /" not in script_text
+
+
+def test_upload_prepares_log_dirs_a_non_root_container_can_write(tmp_path: Path) -> None:
+    data = tarball({"compose.yml": ("services: {}\n", 0o644)})
+    run_local(commands.upload("~/r", "demo", "1.0.0-abc", data, ("driver", "perception")), tmp_path)
+    for service in ("driver", "perception"):
+        mode = (tmp_path / f"r/demo/logs/{service}").stat().st_mode & 0o7777
+        assert mode == 0o1777

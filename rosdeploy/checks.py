@@ -1,0 +1,584 @@
+"""The deployment checklist of docs/ros2-docker-practices.md, as rules.
+
+Each rule is a small function registered with an id, a severity and a fix. They
+run over the fleet spec, the inventory hosts and what each robot would really
+receive: the rendered compose.yml is parsed back (with the robot's .env
+interpolated, as compose would) so a user's own templates are held to the same
+checklist as the built-in ones.
+
+Four scopes, by what a rule needs to see:
+    fleet    (ctx)                          robots compared with each other
+    host     (ctx, host)                    one robot's inventory against the fleet file
+    release  (ctx, target)                  one robot's rendered files as a whole
+    service  (ctx, target, name, service)   one service of one robot's rendered compose
+
+A finding found identically on many robots is reported once, naming the robots
+(the `{robots}` placeholder), so 200 robots with the same template bug give one line.
+Severities: error (refused by validate and deploy), warning, info.
+"""
+from __future__ import annotations
+
+import re
+import xml.etree.ElementTree as ET
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Mapping, Sequence
+
+import yaml
+
+from rosdeploy.errors import Problem
+from rosdeploy.fleet import problem_at, size_bytes
+from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
+
+if TYPE_CHECKING:   # project.py imports this module
+    from rosdeploy.project import Project
+
+SEVERITIES = ("error", "warning", "info")
+ROBOTS = "{robots}"
+MB = 1024 * 1024
+STABLE_DEVICE_PREFIXES = ("/dev/robot/", "/dev/serial/by-id/", "/dev/serial/by-path/", "/dev/v4l/by-id/",
+                          "/dev/v4l/by-path/", "/dev/disk/by-")
+IMAGE_TOPIC_RE = re.compile(r"image|camera|depth|compressed|rgb|points", re.IGNORECASE)
+ROTATING_LOG_DRIVERS = ("local", "journald")   # rotate on their own; json-file needs max-size/max-file
+_INTERPOLATION = re.compile(r"\$(?:(\$)|\{([A-Za-z_][A-Za-z0-9_]*)(?:(:?[-?])([^}]*))?\}|([A-Za-z_][A-Za-z0-9_]*))")
+
+
+@dataclass(frozen=True)
+class Rule:
+    id: str
+    severity: str
+    scope: str
+    summary: str        # what the rule enforces, for docs and `check --json`
+    fix: str            # the general fix; each finding's message says the specific one
+    func: Callable[..., Iterable[Any]]
+
+
+RULES: dict[str, Rule] = {}
+
+
+def rule(rule_id: str, severity: str, scope: str, summary: str, fix: str) -> Callable:
+    def register(func: Callable) -> Callable:
+        RULES[rule_id] = Rule(rule_id, severity, scope, summary, fix, func)
+        return func
+    return register
+
+
+@dataclass(frozen=True)
+class Target:
+    """One robot as the checks see it: its host, its release and the compose file parsed back."""
+
+    host: Host
+    release: RenderedRelease
+    env: Mapping[str, str] = field(default_factory=dict)          # the rendered .env
+    compose: Mapping[str, Any] | None = None                        # interpolated; None: unparsable
+    raw_compose: Mapping[str, Any] | None = None                    # before interpolation
+    compose_error: str = ""
+
+    @property
+    def services(self) -> Mapping[str, Any]:
+        services = (self.compose or {}).get("services")
+        return services if isinstance(services, dict) else {}
+
+
+@dataclass(frozen=True)
+class Context:
+    spec: FleetSpec
+    hosts: tuple[Host, ...]             # the targeted robots
+    all_hosts: tuple[Host, ...]         # the whole inventory: untargeted robots still talk DDS
+    targets: tuple[Target, ...]
+
+    def service(self, name: str) -> Service | None:
+        return next((s for s in self.spec.services if s.name == name), None)
+
+
+# ------------------------------------------------------------------ running
+
+def run_checks(project: Project, hosts: Sequence[Host], releases: Iterable[RenderedRelease] | Mapping[str, RenderedRelease],
+               *, rules: Iterable[Rule] | None = None) -> list[Problem]:
+    """Every finding of every rule, merged across robots, sorted by severity, file and line."""
+    ctx = make_context(project.spec, hosts, tuple(project.inventory.hosts.values()), releases)
+    found: dict[Problem, list[str]] = defaultdict(list)   # a finding -> the robots it was found on
+    for r in (RULES.values() if rules is None else rules):
+        for problem, robot in _run_rule(r, ctx):
+            robots = found[problem]
+            if robot and robot not in robots:
+                robots.append(robot)
+    merged = [_with_robots(p, robots) for p, robots in found.items()]
+    return sorted(merged, key=sort_key)
+
+
+def blocked_hosts(spec: FleetSpec, hosts: Sequence[Host]) -> set[str]:
+    """Robots an error-level host rule fails (a device or secret they lack): they cannot be rendered."""
+    ctx = make_context(spec, hosts, hosts, {})
+    rules = [r for r in RULES.values() if r.scope == "host" and r.severity == "error"]
+    return {h.name for h in hosts if any(any(True for _ in r.func(ctx, h)) for r in rules)}
+
+
+def sort_key(p: Problem) -> tuple:
+    severity = SEVERITIES.index(p.severity) if p.severity in SEVERITIES else len(SEVERITIES)
+    return severity, p.file, p.line or 0, p.key, p.message
+
+
+def make_context(spec: FleetSpec, hosts: Sequence[Host], all_hosts: Sequence[Host],
+                 releases: Iterable[RenderedRelease] | Mapping[str, RenderedRelease]) -> Context:
+    by_name = dict(releases) if isinstance(releases, Mapping) else {r.host: r for r in releases}
+    targets = tuple(parse_release(h, by_name[h.name]) for h in hosts if h.name in by_name)
+    return Context(spec, tuple(hosts), tuple(all_hosts) or tuple(hosts), targets)
+
+
+def _run_rule(r: Rule, ctx: Context) -> Iterator[tuple[Problem, str]]:
+    if r.scope == "fleet":
+        yield from ((_stamp(p, r), "") for p in r.func(ctx))
+    elif r.scope == "host":
+        for host in ctx.hosts:
+            yield from ((_stamp(p, r), host.name) for p in r.func(ctx, host))
+    elif r.scope == "release":
+        for t in ctx.targets:
+            yield from ((_stamp(p, r), t.host.name) for p in r.func(ctx, t))
+    else:
+        for t in ctx.targets:
+            for name, svc in t.services.items():
+                for keypath, message in r.func(ctx, t, name, svc if isinstance(svc, dict) else {}):
+                    yield _stamp(_service_problem(ctx.spec, name, keypath, message), r), t.host.name
+
+
+def _service_problem(spec: FleetSpec, name: str, keypath: tuple, message: str) -> Problem:
+    """Located at the fleet key to fix, or at the service when that key is not in the file at all.
+
+    With a user compose template the fleet file may be right and the template wrong: say so.
+    """
+    if keypath[0] != "services" and keypath[:1] not in spec.lines:
+        keypath = ("services", name)
+    if spec.templates and (Path(spec.templates) / "compose.yml.j2").is_file():
+        message += f" (this compose.yml comes from your template {Path(spec.templates) / 'compose.yml.j2'})"
+    return problem_at(spec, keypath, message)
+
+
+def _stamp(p: Problem, r: Rule) -> Problem:
+    return Problem(p.file, p.line, p.key, p.message, r.severity, r.id)
+
+
+def _with_robots(p: Problem, robots: list[str]) -> Problem:
+    if ROBOTS not in p.message:
+        return p
+    shown = ", ".join(robots[:5]) + (f" (+{len(robots) - 5} more)" if len(robots) > 5 else "")
+    return Problem(p.file, p.line, p.key, p.message.replace(ROBOTS, shown), p.severity, p.rule)
+
+
+def host_problem(host: Host, key: str, message: str) -> Problem:
+    """A problem located where the robot is declared in the inventory (Host.source is "file:line")."""
+    file, _, line = host.source.rpartition(":")
+    if not line.isdigit():
+        return Problem(host.source or "inventory", None, key, message)
+    return Problem(file, int(line), key, message)
+
+
+# ------------------------------------------------------- parsing a release
+
+def parse_release(host: Host, release: RenderedRelease) -> Target:
+    """The release's compose.yml parsed back, with ${VARS} taken from its .env the way compose does."""
+    names = {f.name: f for f in release.files}
+    env = parse_env(names[".env"].content) if ".env" in names else {}
+    if "compose.yml" not in names:
+        return Target(host, release, env, None, None, "no compose.yml was rendered")
+    try:
+        raw = yaml.safe_load(names["compose.yml"].content)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}: " if mark else ""
+        return Target(host, release, env, None, None, f"{where}{getattr(exc, 'problem', None) or exc}")
+    if not isinstance(raw, dict):
+        return Target(host, release, env, None, None, "it is not a mapping")
+    return Target(host, release, env, interpolate(raw, env), raw)
+
+
+def parse_env(text: str) -> dict[str, str]:
+    """KEY=VALUE lines as compose reads a .env: comments skipped, one level of quotes removed."""
+    env: dict[str, str] = {}
+    for line in text.splitlines():
+        line = line.strip()
+        if not line or line.startswith("#") or "=" not in line:
+            continue
+        key, _, value = line.removeprefix("export ").partition("=")
+        value = value.strip()
+        if len(value) >= 2 and value[0] == value[-1] and value[0] in "'\"":
+            value = value[1:-1]
+        env[key.strip()] = value
+    return env
+
+
+def interpolate(value: Any, env: Mapping[str, str]) -> Any:
+    """${VAR}, ${VAR:-default}, ${VAR-default}, $VAR and $$ in every string, recursively."""
+    if isinstance(value, dict):
+        return {k: interpolate(v, env) for k, v in value.items()}
+    if isinstance(value, list):
+        return [interpolate(v, env) for v in value]
+    if not isinstance(value, str):
+        return value
+
+    def one(m: re.Match) -> str:
+        if m.group(1):
+            return "$"
+        name = m.group(2) or m.group(5)
+        current = env.get(name)
+        if m.group(3) in (":-", "-") and (current is None or (m.group(3) == ":-" and current == "")):
+            return m.group(4)
+        return current or ""
+    return _INTERPOLATION.sub(one, value)
+
+
+def env_of(svc: Mapping[str, Any]) -> dict[str, str]:
+    """A compose service's environment, written as a mapping or as a list of KEY=VALUE."""
+    env = svc.get("environment") or {}
+    if isinstance(env, list):
+        return {k: v for k, _, v in (str(item).partition("=") for item in env)}
+    return {str(k): "" if v is None else str(v) for k, v in env.items()} if isinstance(env, dict) else {}
+
+
+def dds_peers(xml_text: str) -> list[str]:
+    """Unicast peers in a CycloneDDS (<Peer address=...>) or Fast DDS (initialPeersList) config."""
+    root = ET.fromstring(xml_text)
+    peers = [el.get("address") or (el.text or "").strip() for el in root.iter() if _local(el.tag) == "Peer"]
+    for plist in (el for el in root.iter() if _local(el.tag) == "initialPeersList"):
+        peers += [(a.text or "").strip() for a in plist.iter() if _local(a.tag) == "address"]
+    return [p for p in peers if p]
+
+
+def _local(tag: str) -> str:
+    return tag.rsplit("}", 1)[-1]
+
+
+def _size_or_none(value: Any) -> int | None:
+    try:
+        return size_bytes(value)
+    except (ValueError, TypeError):
+        return None
+
+
+# ================================================================ the rules
+# ---------------------------------------------------- robots and inventory
+
+@rule("domain-id-duplicate", "error", "fleet", "Two robots on one network never share a ROS_DOMAIN_ID.",
+      "Give every robot on a network (Host.network) its own ros_domain_id.")
+def _domain_duplicates(ctx: Context) -> Iterator[Problem]:
+    seen: dict[tuple[str, int], Host] = {}
+    for host in ctx.all_hosts:
+        if "ros_domain_id" not in host.vars:
+            continue
+        first = seen.setdefault((host.network, host.ros_domain_id), host)
+        if first is not host:
+            yield host_problem(host, "ros_domain_id", (
+                f"{host.name} and {first.name} ({first.source}) both use ros_domain_id {host.ros_domain_id} "
+                f"on network `{host.network}`: their DDS traffic would mix; give {host.name} an unused ID (0-101)"))
+
+
+@rule("domain-id-missing", "error", "host", "Every robot declares its ros_domain_id in the inventory.",
+      "Add `ros_domain_id: N` (0-101, unique per network) to the robot's host vars.")
+def _domain_missing(ctx: Context, host: Host) -> Iterator[Problem]:
+    if "ros_domain_id" not in host.vars:
+        yield host_problem(host, "ros_domain_id", (
+            f"{host.name} declares no ros_domain_id: without one it would join domain 0 with every other "
+            "such robot; add `ros_domain_id: N` (0-101, unique on its network) to its host vars"))
+
+
+@rule("domain-id-range", "error", "host", "ROS_DOMAIN_ID is within 0-232.",
+      "Use an ID from 0 to 101 (safe on every Linux host).")
+def _domain_range(ctx: Context, host: Host) -> Iterator[Problem]:
+    return _domain_findings(host, lambda d: not 0 <= d <= 232,
+                            "{name} has ros_domain_id {id}: DDS accepts only 0-232; use 0-101")
+
+
+@rule("domain-id-unsafe", "warning", "host", "ROS_DOMAIN_ID is within 0-101, the range safe on every Linux host.",
+      "Use an ID from 0 to 101: 102-232 can collide with the host's ephemeral ports.")
+def _domain_unsafe(ctx: Context, host: Host) -> Iterator[Problem]:
+    return _domain_findings(host, lambda d: 102 <= d <= 232, (
+        "{name} has ros_domain_id {id}: IDs 102-232 overlap the Linux ephemeral port range and can fail "
+        "to bind; use 0-101"))
+
+
+def _domain_findings(host: Host, bad: Callable[[int], bool], message: str) -> Iterator[Problem]:
+    if "ros_domain_id" in host.vars and bad(host.ros_domain_id):
+        yield host_problem(host, "ros_domain_id", message.format(name=host.name, id=host.ros_domain_id))
+
+
+@rule("device-undeclared", "error", "host", "Every device a service asks for is declared by the robot.",
+      "Add the logical name to the robot's inventory `devices:` (name: /dev/robot/...), or remove it from the service.")
+def _device_undeclared(ctx: Context, host: Host) -> Iterator[Problem]:
+    for svc in ctx.spec.services:
+        for i, device in enumerate(svc.devices):
+            if device not in host.devices:
+                yield problem_at(ctx.spec, ("services", svc.name, "devices", i), (
+                    f"service {svc.name} needs device `{device}`, which the inventory does not declare for "
+                    f"{ROBOTS}: add `{device}: /dev/robot/{device}` under their `devices:` (host or group vars), "
+                    f"or remove it from the service"))
+
+
+@rule("secret-undefined", "error", "host", "Every `secrets:` entry names a variable the robot has.",
+      "Define the variable in a vault-encrypted vars file of the inventory.")
+def _secret_undefined(ctx: Context, host: Host) -> Iterator[Problem]:
+    return _secret_findings(ctx, lambda var: var not in host.vars, (
+        "{env} takes inventory variable `{var}`, which is not defined for {robots}: add it to a "
+        "vault-encrypted vars file (e.g. group_vars/all/vault.yml)"))
+
+
+@rule("secret-not-vaulted", "error", "host", "Secrets come from vault-encrypted files only.",
+      "Move the variable into a vault-encrypted vars file.")
+def _secret_not_vaulted(ctx: Context, host: Host) -> Iterator[Problem]:
+    return _secret_findings(ctx, lambda var: var in host.vars and str(host.vars[var]) not in host.secret_values, (
+        "{env} takes inventory variable `{var}`, which is plain text for {robots}, not from a vault "
+        "file: move it into a vault-encrypted vars file so it is never committed in the clear"))
+
+
+@rule("secret-short", "warning", "host", "Secrets are at least 4 characters (shorter ones are not masked in output).",
+      "Use a longer secret.")
+def _secret_short(ctx: Context, host: Host) -> Iterator[Problem]:
+    return _secret_findings(ctx, lambda var: var in host.vars and len(str(host.vars[var])) < 4, (
+        "`{var}` of {robots} is shorter than 4 characters: too short to be a secret and too short "
+        "for rosdeploy to mask in its output; use a longer value"))
+
+
+def _secret_findings(ctx: Context, bad: Callable[[str], bool], message: str) -> Iterator[Problem]:
+    """One finding per `secrets:` entry whose inventory variable `bad` rejects."""
+    for svc in ctx.spec.services:
+        for env, var in svc.secret_env.items():
+            if bad(var):
+                yield problem_at(ctx.spec, ("services", svc.name, "secrets", env),
+                                 message.format(env=env, var=var, robots=ROBOTS))
+
+
+@rule("gpu-unavailable", "warning", "host", "A gpu service targets robots with `gpu: true`.",
+      "Set `gpu: true` in the inventory of robots that have one, or expect the service without a GPU.")
+def _gpu_unavailable(ctx: Context, host: Host) -> Iterator[Problem]:
+    for svc in ctx.spec.services:
+        if svc.gpu and not host.gpu:
+            yield problem_at(ctx.spec, ("services", svc.name, "gpu"), (
+                f"service {svc.name} wants a GPU, but the inventory gives none (`gpu: true`) to {ROBOTS}: "
+                "it is deployed there without a GPU reservation; make sure it can run on the CPU"))
+
+
+# ------------------------------------------------------- a robot's release
+
+@rule("compose-invalid", "error", "release", "The rendered compose.yml is valid YAML with a `services` mapping.",
+      "Fix the compose template (the fleet file's `templates:` folder, or report a bug in the built-in one).")
+def _compose_invalid(ctx: Context, t: Target) -> Iterator[Problem]:
+    if t.compose_error or not isinstance((t.compose or {}).get("services"), dict):
+        why = t.compose_error or "it has no `services:` mapping"
+        yield problem_at(ctx.spec, ("templates",) if ctx.spec.templates else (), (
+            f"the compose.yml rendered for {ROBOTS} is not a valid compose file ({why}): fix the compose template"))
+
+
+@rule("dds-peers-missing", "error", "release", "Off host networking, the DDS config lists explicit unicast peers.",
+      "Render the peers from the deployed services (built-in templates do), or use `ros.network_mode: host`.")
+def _dds_peers(ctx: Context, t: Target) -> Iterator[Problem]:
+    if all(svc.get("network_mode") == "host" for svc in t.services.values() if isinstance(svc, dict)):
+        return
+    name = "cyclonedds.xml" if ctx.spec.rmw == "cyclonedds" else "fastdds.xml"
+    where = ("ros", "network_mode")
+    xml = next((f.content for f in t.release.files if f.name == name), None)
+    if xml is None:
+        yield problem_at(ctx.spec, where, f"no {name} was rendered for {ROBOTS}, whose services are not on host "
+                                          "networking: DDS discovery needs it; check the templates")
+        return
+    try:
+        peers = dds_peers(xml)
+    except ET.ParseError as exc:
+        yield problem_at(ctx.spec, where, f"the {name} rendered for {ROBOTS} is not valid XML ({exc}): fix its template")
+        return
+    if not peers:
+        yield problem_at(ctx.spec, where, (
+            f"services of {ROBOTS} are on a bridge network, which carries no multicast, and {name} lists no "
+            "unicast peers: nodes would not discover each other; render the peers or use network_mode: host"))
+
+
+@rule("domain-id-not-injected", "error", "release", "ROS_DOMAIN_ID comes from the robot's .env, never hard-coded.",
+      "In the compose template write `ROS_DOMAIN_ID: ${ROS_DOMAIN_ID:-0}` and set it in .env.")
+def _domain_injected(ctx: Context, t: Target) -> Iterator[Problem]:
+    if t.env.get("ROS_DOMAIN_ID") != str(t.host.ros_domain_id):
+        yield problem_at(ctx.spec, ("templates",) if ctx.spec.templates else (), (
+            f"the .env rendered for {ROBOTS} does not set ROS_DOMAIN_ID to the robot's ros_domain_id: "
+            "fix the .env template"))
+    services = (t.raw_compose or {}).get("services")
+    for name, svc in (services.items() if isinstance(services, dict) else ()):
+        raw = env_of(svc).get("ROS_DOMAIN_ID", "") if isinstance(svc, dict) else ""
+        if not re.search(r"\$\{?ROS_DOMAIN_ID\b", raw):
+            yield problem_at(ctx.spec, ("services", name), (
+                f"service {name} of {ROBOTS} does not take ROS_DOMAIN_ID from .env (`${{ROS_DOMAIN_ID}}`): "
+                "a hard-coded or missing ID puts robots on the wrong domain; fix the compose template"))
+
+
+# ------------------------------------------------- a service of a release
+
+Finding = Iterator[tuple[tuple, str]]   # (key path in the fleet file, message)
+
+
+@rule("image-unversioned", "error", "service", "Every image carries an explicit version tag or digest, never `latest`.",
+      "Set `version:` (or the service's `tag:`) and keep the tag in the compose template.")
+def _image_unversioned(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    image = str(svc.get("image") or "")
+    if "@sha256:" in image:
+        return
+    last = image.rsplit("/", 1)[-1]
+    tag = last.rpartition(":")[2] if ":" in last else ""
+    if not tag or tag.lower() == "latest":
+        yield ("services", name, "image"), (
+            f"service {name} of {ROBOTS} would run image `{image or '(none)'}`, which has no version "
+            "tag (or `latest`): it cannot be rolled back to; keep `:<version>` in the compose template")
+
+
+@rule("healthcheck-missing", "warning", "service", "Every service has a health check that proves the node works.",
+      "Add `healthcheck: {test: [CMD-SHELL, ...]}` or `healthcheck: image` if the image has a HEALTHCHECK.")
+def _healthcheck_missing(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    check = svc.get("healthcheck")
+    declared = ctx.service(name)
+    if declared is not None and declared.healthcheck_from_image:
+        return
+    test = check.get("test") if isinstance(check, dict) else None
+    if not isinstance(check, dict) or check.get("disable") or test in (["NONE"], "NONE", None):
+        yield ("services", name, "healthcheck"), (
+            f"service {name} has no health check: a crashed-but-running node looks healthy to the deploy gate and "
+            "to depends_on; add `healthcheck:` (or `healthcheck: image` to trust the image's HEALTHCHECK)")
+
+
+@rule("restart-missing", "error", "service", "Every service has a restart policy.",
+      "Set `restart: unless-stopped` (always for critical drivers and watchdogs).")
+def _restart_missing(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    restart = str(svc.get("restart", "no"))
+    if restart not in ("always", "unless-stopped") and not restart.startswith("on-failure"):
+        yield ("services", name, "restart"), (
+            f"service {name} of {ROBOTS} has restart policy `{restart}` in the rendered compose.yml: "
+            "it stays down after a crash or reboot; set `restart: unless-stopped` (or always)")
+
+
+@rule("log-rotation-missing", "error", "service", "Every service's logs rotate (json-file max-size and max-file).",
+      "Keep `logging: {driver: json-file, options: {max-size, max-file}}` in the compose template.")
+def _log_rotation(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    logging = _dig(svc, "logging")
+    driver = logging.get("driver", "json-file")
+    options = _dig(logging, "options")
+    if driver in ROTATING_LOG_DRIVERS:
+        return
+    if driver != "json-file" or "max-size" not in options or "max-file" not in options:
+        yield ("logging",), (
+            f"service {name} of {ROBOTS} logs with `{driver}` without max-size/max-file: ROS logs can fill the "
+            "robot's disk; render `logging: {driver: json-file, options: {max-size: 10m, max-file: \"3\"}}`")
+
+
+@rule("privileged", "error", "service", "No privileged container unless declared on purpose.",
+      "Map the devices with `devices:` instead; if it must be privileged, add `allow_privileged: true`.")
+def _privileged(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    declared = ctx.service(name)
+    if svc.get("privileged") is True and not (declared and declared.allow_privileged):
+        yield ("services", name, "privileged"), (
+            f"service {name} runs privileged: it can do anything to the robot; map devices with `devices:` "
+            "instead (their groups are added for you), or set `allow_privileged: true` to say it is on purpose")
+
+
+@rule("shm-too-small", "error", "service", "shm_size is at least 256 MB (Docker's 64 MB breaks DDS shared memory).",
+      "Set `ros.shm_size: 512m` (or share the host's with ipc: host).")
+def _shm_too_small(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    if _shares_ipc(svc):
+        return
+    size = _size_or_none(svc.get("shm_size", "64m"))
+    if size is None or size < 256 * MB:
+        yield ("ros", "shm_size"), (
+            f"service {name} of {ROBOTS} gets {svc.get('shm_size', '64m (the Docker default)')} of /dev/shm: DDS "
+            "shared-memory transport needs at least 256 MB; set `ros.shm_size: 512m`")
+
+
+@rule("shm-small-for-images", "warning", "service", "shm_size is at least 512 MB for services with image topics.",
+      "Set `ros.shm_size: 512m` or more.")
+def _shm_small_for_images(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    declared = ctx.service(name)
+    image_topics = [tp.name for tp in (declared.topics if declared else ()) if IMAGE_TOPIC_RE.search(tp.name)]
+    size = _size_or_none(svc.get("shm_size", "64m"))
+    if image_topics and not _shares_ipc(svc) and size is not None and 256 * MB <= size < 512 * MB:
+        yield ("services", name, "topics"), (
+            f"service {name} publishes image topics ({', '.join(image_topics)}) with only "
+            f"{svc.get('shm_size')} of /dev/shm: set `ros.shm_size: 512m` or more")
+
+
+def _shares_ipc(svc: Mapping[str, Any]) -> bool:
+    """The container uses another /dev/shm (the host's or a peer's): its own shm_size does not matter."""
+    ipc = str(svc.get("ipc", ""))
+    mounts = {_mount_target(v) for v in _as_list(svc.get("volumes"))}
+    return ipc == "host" or ipc.startswith(("service:", "container:")) or "/dev/shm" in mounts
+
+
+def _mount_target(volume: Any) -> str:
+    """Where a compose volume lands in the container, in its short ("src:dst[:ro]") or long form."""
+    if isinstance(volume, dict):
+        return str(volume.get("target", ""))
+    parts = str(volume).split(":")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+@rule("device-unstable", "warning", "service", "Devices are mapped by stable udev names (/dev/robot/*).",
+      "Add a udev entry in the inventory (`udev:`) and map /dev/robot/<name> instead of /dev/ttyUSB0.")
+def _device_unstable(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    for entry in _as_list(svc.get("devices")):
+        path = str(entry.get("source", "") if isinstance(entry, dict) else entry).split(":")[0]
+        if not path.startswith(STABLE_DEVICE_PREFIXES):
+            yield ("services", name, "devices"), (
+                f"service {name} maps {path} on {ROBOTS}: names like /dev/ttyUSB0 change with USB enumeration "
+                "order across boots; give the device a udev symlink (inventory `udev:`) and use /dev/robot/<name>")
+
+
+@rule("resources-missing", "warning", "service", "Every service has memory and CPU limits.",
+      "Set `resources: {memory: 512m, cpus: 1.0}`.")
+def _resources_missing(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    limits = _dig(svc, "deploy", "resources", "limits")
+    missing = [what for what, keys in (("memory", ("mem_limit", "memory")), ("CPU", ("cpus",)))
+               if not any(k in svc or k in limits for k in keys)]
+    if missing:
+        yield ("services", name, "resources"), (
+            f"service {name} has no {' or '.join(missing)} limit: one runaway node can starve the "
+            "rest of the robot; set `resources: {memory: 512m, cpus: 1.0}`")
+
+
+@rule("user-root", "warning", "service", "Containers run as a non-root user.",
+      "Set `user: \"1000:1000\"`; the groups of mapped devices (dialout, video) are added for you.")
+def _user_root(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    user = str(svc.get("user", "")).split(":")[0]
+    if user in ("root", "0"):
+        yield ("services", name, "user"), (
+            f"service {name} runs as root: set a non-root `user:` such as \"1000:1000\" "
+            "(device groups are added from `devices:`)")
+
+
+@rule("user-unset", "info", "service", "A container user is set explicitly.",
+      "Set `user:` unless the image already runs as a non-root USER.")
+def _user_unset(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    if "user" not in svc:
+        yield ("services", name), (
+            f"service {name} sets no `user:`: it runs as the image's USER, root unless the image says "
+            "otherwise; set `user:` or make sure the image is non-root")
+
+
+@rule("gpu-reservation", "error", "service", "A GPU is reserved exactly for gpu services on robots with `gpu: true`.",
+      "Keep the nvidia device reservation in the compose template, conditioned on the robot's gpu.")
+def _gpu_reservation(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    declared = ctx.service(name)
+    wanted = bool(declared and declared.gpu and t.host.gpu)
+    if _reserves_gpu(svc) != wanted:
+        state = "reserves no GPU although it is a gpu service" if wanted else "reserves a GPU the robot does not have"
+        outcome = "run it without the GPU" if wanted else "fail to start it"
+        yield ("services", name, "gpu"), (
+            f"service {name} on {ROBOTS} {state}: compose would {outcome}; fix the compose template")
+
+
+def _reserves_gpu(svc: Mapping[str, Any]) -> bool:
+    devices = _dig(svc, "deploy", "resources", "reservations").get("devices")
+    return any("gpu" in (d.get("capabilities") or []) or d.get("driver") == "nvidia"
+               for d in _as_list(devices) if isinstance(d, dict)) or svc.get("runtime") == "nvidia"
+
+
+def _dig(data: Any, *keys: str) -> Mapping[str, Any]:
+    """data[k1][k2]... as a mapping, or {} when any level is missing or not a mapping (a user template's shape)."""
+    for key in keys:
+        data = data.get(key) if isinstance(data, dict) else None
+    return data if isinstance(data, dict) else {}
+
+
+def _as_list(value: Any) -> list:
+    return value if isinstance(value, list) else [] if value is None else [value]

@@ -1,0 +1,656 @@
+"""The fleet file (playbooks/*.yml): what runs on every robot and how it is rolled out.
+
+`load_fleet` reads it strictly. An unknown key, a wrong type, or a value that
+could break the rendered compose file, the .env or a remote shell command is
+reported with file:line, the key path and a fix; every problem in the file is
+collected first and raised together as one FleetSpecError, so a user fixes the
+file in one pass instead of one error per run.
+
+The schema is data (one table per section, one small converter per value kind)
+so the key reference in docs/fleet-file.md and the code read the same.
+"""
+from __future__ import annotations
+
+import difflib
+import os
+import re
+import shlex
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping
+
+from rosdeploy import yamlsrc
+from rosdeploy.errors import FleetSpecError, InputError, Problem
+from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, RollbackPolicy, RolloutPolicy,
+                             Service, Topic, frozen_map)
+from rosdeploy.yamlsrc import Doc, KeyPath
+
+BAD = object()            # what a converter returns after it reported a problem
+HEALTH_FROM_IMAGE = "image"
+
+# Names that reach compose project/service names, file names and shell commands.
+NAME_RE = re.compile(r"[a-z0-9][a-z0-9_-]{0,62}")
+ENV_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+DEVICE_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
+TAG_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
+USER_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*(:[A-Za-z0-9_][A-Za-z0-9_.-]*)?")
+TOPIC_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
+REMOTE_PATH_RE = re.compile(r"(~|~/[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*|(/[A-Za-z0-9_.-]+)+)/?")
+_DOMAIN = r"(?:localhost|[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?)*)(?::[0-9]{1,5})?"
+_COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
+REGISTRY_RE = re.compile(rf"{_DOMAIN}(?:/{_COMPONENT})*")
+REPOSITORY_RE = re.compile(rf"{_COMPONENT}(?:/{_COMPONENT})*")
+_DURATION_PART = re.compile(r"(\d+(?:\.\d+)?)(ms|h|m|s)")
+_SIZE_RE = re.compile(r"(\d+(?:\.\d+)?)([kmg])b?", re.IGNORECASE)
+_UNITS = {"ms": 0.001, "s": 1, "m": 60, "h": 3600}
+_CONTROL = {"\n": "a newline", "\r": "a carriage return", "\0": "a NUL byte"}
+
+# rosdeploy sets these per robot (checklist item 8): a fleet file must not hard-code them.
+RESERVED_ENV = frozenset({"ROS_DOMAIN_ID", "RMW_IMPLEMENTATION", "CYCLONEDDS_URI",
+                          "FASTRTPS_DEFAULT_PROFILES_FILE", "NVIDIA_VISIBLE_DEVICES"})
+# compose keys rosdeploy renders from fleet keys; `compose:` may not override them.
+MANAGED_COMPOSE = {"image": "image/tag", "command": "command", "environment": "environment",
+                   "env_file": "environment", "devices": "devices", "restart": "restart",
+                   "mem_limit": "resources.memory", "cpus": "resources.cpus", "deploy": "resources/gpu",
+                   "healthcheck": "healthcheck", "depends_on": "depends_on", "user": "user",
+                   "privileged": "privileged", "profiles": "profiles", "logging": "logging (top level)",
+                   "network_mode": "ros.network_mode", "networks": "ros.network_mode", "shm_size": "ros.shm_size",
+                   "build": "image", "group_add": "devices (their groups, dialout or video, are added for you)",
+                   "volumes": "the release layout (DDS config, /dev/shm and logs are mounted for you)",
+                   "labels": "project/service/version labels (rendered)"}
+
+Convert = Callable[["Reader", KeyPath, Any], Any]
+
+
+# ------------------------------------------------------------------ values
+
+def parse_duration(value: Any) -> float:
+    """`90`, `90s`, `2m`, `1m30s`, `500ms` -> seconds. ValueError when it is none of those."""
+    if isinstance(value, bool) or value is None:
+        raise ValueError(value)
+    if isinstance(value, (int, float)):
+        seconds = float(value)
+    else:
+        text = str(value).strip()
+        if re.fullmatch(r"\d+(\.\d+)?", text):
+            text += "s"
+        parts = _DURATION_PART.findall(text)
+        if not parts or "".join(n + u for n, u in parts) != text:
+            raise ValueError(value)
+        seconds = sum(float(n) * _UNITS[u] for n, u in parts)
+    if seconds < 0:
+        raise ValueError(value)
+    return seconds
+
+
+def compose_duration(seconds: float) -> str:
+    """Seconds in the form compose's healthcheck fields take: `90s`, `1500ms`."""
+    return f"{int(seconds)}s" if seconds == int(seconds) else f"{round(seconds * 1000)}ms"
+
+
+def size_bytes(text: str | int) -> int:
+    """`512m`, `1g`, `256mb` (binary units, as Docker reads them) or a plain byte count -> bytes."""
+    if isinstance(text, int) and not isinstance(text, bool):
+        return text
+    match = _SIZE_RE.fullmatch(str(text).strip())
+    if not match:
+        if str(text).strip().isdigit():
+            return int(str(text).strip())
+        raise ValueError(text)
+    return int(float(match.group(1)) * 1024 ** ("kmg".index(match.group(2).lower()) + 1))
+
+
+def _kind(value: Any) -> str:
+    if value is None:
+        return "nothing (null)"
+    if isinstance(value, bool):
+        return f"true/false ({str(value).lower()})"
+    if isinstance(value, (int, float)):
+        return f"a number ({value})"
+    if isinstance(value, str):
+        return f"a string ({value!r})"
+    return "a list" if isinstance(value, list) else "a mapping"
+
+
+# ------------------------------------------------------------------ reader
+
+class Reader:
+    """Walks one fleet Doc and collects problems instead of stopping at the first."""
+
+    def __init__(self, doc: Doc) -> None:
+        self.doc = doc
+        self.base = Path(doc.path).parent
+        self.problems: list[Problem] = []
+        self._reported: set[KeyPath] = set()
+        self._poisoned: set[KeyPath] = set()   # values holding control characters
+
+    def error(self, kp: KeyPath, message: str) -> object:
+        """Record one problem per key path; returns BAD so converters can `return r.error(...)`."""
+        if kp in self._reported or any(kp[:n] in self._poisoned for n in range(len(kp) + 1)):
+            return BAD
+        self._reported.add(kp)
+        self.problems.append(self.doc.problem(kp, message))
+        return BAD
+
+    def scan_control_chars(self, value: Any, kp: KeyPath = ()) -> None:
+        """Newlines and NULs would split a .env line, a YAML scalar or a shell word: refuse them anywhere."""
+        if isinstance(value, dict):
+            for key, item in value.items():
+                self._check_text(kp + (key,), str(key), "key")
+                self.scan_control_chars(item, kp + (key,))
+        elif isinstance(value, list):
+            for i, item in enumerate(value):
+                self.scan_control_chars(item, kp + (i,))
+        elif isinstance(value, str):
+            self._check_text(kp, value, "value")
+
+    def _check_text(self, kp: KeyPath, text: str, what: str) -> None:
+        found = [name for char, name in _CONTROL.items() if char in text]
+        if found:
+            self.error(kp, f"{what} contains {' and '.join(found)}: it would break the rendered files and "
+                           "remote commands; write it on one line (a YAML `|` block is not allowed here)")
+            self._poisoned.add(kp)
+
+    def unknown_keys(self, kp: KeyPath, value: dict, allowed: Iterable[str]) -> set[str]:
+        """Report keys not in `allowed` with a did-you-mean; returns the keys suggested."""
+        allowed = list(allowed)
+        suggested: set[str] = set()
+        for key in value:
+            if key in allowed:
+                continue
+            close = suggest(str(key), allowed)
+            hint = f"did you mean `{close[0]}`?" if close else f"the keys here are: {', '.join(allowed)}"
+            self.error(kp + (key,), f"unknown key `{key}`: {hint}")
+            suggested.update(close)
+        return suggested
+
+    def local_path(self, kp: KeyPath, value: Any, base: Path | None = None) -> Any:
+        """A path on this machine: ~ and $VARS expanded, relative to the fleet file's folder."""
+        if not isinstance(value, str) or not value.strip():
+            return self.error(kp, f"must be a path (a string); got {_kind(value)}")
+        expanded = os.path.expandvars(value)
+        unset = re.search(r"\$\{?([A-Za-z_][A-Za-z0-9_]*)", expanded)
+        if unset:
+            return self.error(kp, f"environment variable ${unset.group(1)} is not set: export it, "
+                                  "or write the path without it")
+        # Absolute, so later stages (the renderer, remote commands) need not know where the fleet file was.
+        return os.path.abspath((base or self.base) / Path(expanded).expanduser())
+
+
+# -------------------------------------------------------------- converters
+
+def _section(schema: Mapping[str, Convert], required: tuple[str, ...] = ()) -> Convert:
+    """A mapping with a fixed set of keys; returns {key: converted value} for the keys present."""
+    def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
+        if not isinstance(value, dict):
+            return r.error(kp, f"must be a mapping with the keys {', '.join(schema)}; got {_kind(value)}")
+        suggested = r.unknown_keys(kp, value, schema)
+        for key in required:
+            if key not in value and key not in suggested:
+                r.error(kp + (key,), f"required key missing: add `{key}:` here")
+        return {key: conv(r, kp + (key,), value[key]) for key, conv in schema.items() if key in value}
+    return convert
+
+
+def _named(key_re: re.Pattern, what: str, item: Convert) -> Convert:
+    """A mapping whose keys the user names (services, environment, vars)."""
+    def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
+        if not isinstance(value, dict):
+            return r.error(kp, f"must be a mapping of {what} names to values; got {_kind(value)}")
+        out = {}
+        for key, sub in value.items():
+            if not isinstance(key, str) or not key_re.fullmatch(key):
+                r.error(kp + (key,), f"`{key}` is not a valid {what} name: use {_pattern_hint(key_re)}")
+            else:
+                out[key] = item(r, kp + (key,), sub)
+        return out
+    return convert
+
+
+def _pattern_hint(pattern: re.Pattern) -> str:
+    return _HINTS.get(pattern, f"only the characters of the pattern {pattern.pattern}")
+
+
+_HINTS = {
+    NAME_RE: "lower-case letters, digits, `_` and `-`, starting with a letter or digit (at most 63)",
+    ENV_RE: "letters, digits and `_`, not starting with a digit",
+    DEVICE_RE: "letters, digits, `_`, `.` and `-` (the key of the device in the robot's inventory `devices`)",
+    USER_RE: 'a user name, a uid or uid:gid, e.g. "1000:1000"',
+    TOPIC_RE: "an absolute name of letters, digits and `_` parts, e.g. /joint_states or /camera/image_raw",
+    REMOTE_PATH_RE: "an absolute path or one under ~, of letters, digits, `_`, `.`, `-` and `/` only",
+}
+
+
+def _string(pattern: re.Pattern | None = None, what: str = "") -> Convert:
+    def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
+        if not isinstance(value, str):
+            hint = f'; quote it: "{value}"' if isinstance(value, (int, float)) and not isinstance(value, bool) else ""
+            return r.error(kp, f"must be a string; got {_kind(value)}{hint}")
+        if pattern is not None and not pattern.fullmatch(value):
+            return r.error(kp, f"{value!r} is not a valid {what}: use {_pattern_hint(pattern)}")
+        return value
+    return convert
+
+
+def _text(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """Free text for an environment value: scalars are written as compose would read them."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, (str, int, float)):
+        return str(value)
+    return r.error(kp, f"must be a string, number or true/false; got {_kind(value)}")
+
+
+def _boolean(r: Reader, kp: KeyPath, value: Any) -> Any:
+    if not isinstance(value, bool):
+        return r.error(kp, f"must be true or false; got {_kind(value)}")
+    return value
+
+
+def _integer(low: int, high: int | None = None) -> Convert:
+    def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
+        if isinstance(value, bool) or not isinstance(value, int) or value < low or (high is not None and value > high):
+            top = f" and {high}" if high is not None else ""
+            return r.error(kp, f"must be a whole number {'between ' + str(low) + top if top else '>= ' + str(low)}; "
+                               f"got {_kind(value)}")
+        return value
+    return convert
+
+
+def _positive(r: Reader, kp: KeyPath, value: Any) -> Any:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value <= 0:
+        return r.error(kp, f"must be a number above 0; got {_kind(value)}")
+    return float(value)
+
+
+def _duration(r: Reader, kp: KeyPath, value: Any) -> Any:
+    try:
+        return parse_duration(value)
+    except ValueError:
+        return r.error(kp, f"must be a duration like 90, 90s, 2m or 1m30s; got {_kind(value)}")
+
+
+def _size(r: Reader, kp: KeyPath, value: Any) -> Any:
+    if not isinstance(value, str) or not _SIZE_RE.fullmatch(value.strip()):
+        return r.error(kp, f"must be a size with a unit like 512m or 1g; got {_kind(value)}")
+    return value.strip().lower()
+
+
+def _enum(*choices: str) -> Convert:
+    def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
+        if value not in choices:
+            return r.error(kp, f"must be one of {', '.join(choices)}; got {_kind(value)}")
+        return value
+    return convert
+
+
+def _listof(item: Convert, what: str) -> Convert:
+    def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
+        if not isinstance(value, list):
+            return r.error(kp, f"must be a list of {what}; got {_kind(value)}")
+        out = [item(r, kp + (i,), v) for i, v in enumerate(value)]
+        for i, v in enumerate(value):
+            if isinstance(v, (str, int)) and value.index(v) < i:
+                r.error(kp + (i,), f"{v!r} is listed twice; keep one")
+        return tuple(out)
+    return convert
+
+
+# ------------------------------------------------------ values with meaning
+
+def _tag(r: Reader, kp: KeyPath, value: Any) -> Any:
+    value = _string()(r, kp, value)
+    if value is BAD:
+        return BAD
+    if not value.strip() or value.strip().lower() == "latest":
+        return r.error(kp, f"{value!r} is not a release version: every deploy needs an explicit tag that "
+                           'can be rolled back to, e.g. "1.4.2" or "1.4.2-3f9a2c1" (version and commit)')
+    if not TAG_RE.fullmatch(value):
+        return r.error(kp, f"{value!r} is not a valid image tag: use letters, digits, `_`, `.` and `-` "
+                           "(at most 128, not starting with `.` or `-`)")
+    return value
+
+
+def _registry(r: Reader, kp: KeyPath, value: Any) -> Any:
+    value = _string()(r, kp, value)
+    if value is not BAD and not REGISTRY_RE.fullmatch(value):
+        return r.error(kp, f"{value!r} is not a registry: write host[:port][/path], e.g. registry.local:5000, "
+                           "without a scheme (no https://)")
+    return value
+
+
+def _image(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """A repository without tag; its registry host is checked against `registry` later."""
+    value = _string()(r, kp, value)
+    if value is BAD:
+        return BAD
+    if "@" in value:
+        return r.error(kp, "an image digest is not supported here: give the repository only and pin the "
+                           "version with `tag:`")
+    last = value.rsplit("/", 1)[-1]
+    if ":" in last:
+        repo, tag = value.rsplit(":", 1)
+        return r.error(kp, f"`image:` must not carry a tag (`:{tag}`): the release `version` is every image's "
+                           f"tag; write `image: {repo}` and, to pin this service, `tag: \"{tag}\"`")
+    host, _, rest = value.partition("/")
+    if _has_registry_host(value) and REGISTRY_RE.fullmatch(host) and REPOSITORY_RE.fullmatch(rest):
+        return value
+    if not REPOSITORY_RE.fullmatch(value):
+        return r.error(kp, f"{value!r} is not a valid image repository: use lower-case path components "
+                           "(letters, digits, `.`, `_`, `-`) separated by `/`, e.g. acme/amr-driver")
+    return value
+
+
+def _has_registry_host(image: str) -> bool:
+    first, sep, _ = image.partition("/")
+    return bool(sep) and ("." in first or ":" in first or first == "localhost")
+
+
+def _command(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """A list of words (exec form). A string is split like a shell would, but never run by one."""
+    if isinstance(value, str):
+        try:
+            value = shlex.split(value)
+        except ValueError as exc:
+            return r.error(kp, f"cannot split the command into words ({exc}): write it as a list, "
+                               "e.g. [ros2, launch, amr_driver, driver.launch.py]")
+    if not isinstance(value, list) or not value:
+        return r.error(kp, f"must be a non-empty list of words; got {_kind(value)}")
+    words = [_text(r, kp + (i,), word) for i, word in enumerate(value)]
+    return BAD if BAD in words else tuple(words)
+
+
+def _healthcheck(r: Reader, kp: KeyPath, value: Any) -> Any:
+    if value == HEALTH_FROM_IMAGE:
+        return HEALTH_FROM_IMAGE
+    if not isinstance(value, dict):
+        return r.error(kp, f"must be a mapping (test, interval, timeout, retries, start_period) or `image` "
+                           f"to trust the image's own HEALTHCHECK; got {_kind(value)}")
+    d = _section(_HEALTHCHECK, required=("test",))(r, kp, value)
+    if BAD in d.values() or "test" not in d:
+        return BAD
+    times = {k: compose_duration(d[k]) for k in ("interval", "timeout", "start_period") if k in d}
+    return HealthCheck(test=d["test"], retries=d.get("retries", 3), **times)
+
+
+def _health_test(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """[CMD, ...] / [CMD-SHELL, "..."] as compose takes it; a plain string is CMD-SHELL."""
+    if isinstance(value, str):
+        return ("CMD-SHELL", value) if value.strip() else r.error(kp, "is empty: give the command to run")
+    words = _command(r, kp, value)
+    if words is not BAD and (words[0] not in ("CMD", "CMD-SHELL") or len(words) < 2):
+        return r.error(kp, 'must start with CMD or CMD-SHELL and then the command, e.g. '
+                           '[CMD-SHELL, "ros2 topic list | grep -q /joint_states"]')
+    return words
+
+
+def _topic(r: Reader, kp: KeyPath, value: Any) -> Any:
+    if isinstance(value, str):
+        value = {"name": value}
+    d = _section(_TOPIC, required=("name",))(r, kp, value)
+    if d is BAD or BAD in d.values() or "name" not in d:
+        return BAD
+    return Topic(name=d["name"], min_rate=d.get("min_rate"))
+
+
+def _wave(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """A robot count (1, 5) or a share of the targets ("10%")."""
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
+        return value
+    if isinstance(value, str) and re.fullmatch(r"\d{1,3}%", value) and 0 < int(value[:-1]) <= 100:
+        return value
+    return r.error(kp, f'must be a robot count (1, 5) or a percentage of the targets ("10%"); got {_kind(value)}')
+
+
+def _max_fail(r: Reader, kp: KeyPath, value: Any) -> Any:
+    if isinstance(value, int) and not isinstance(value, bool) and value == 0:
+        return 0
+    return _wave(r, kp, value)
+
+
+def _restart(r: Reader, kp: KeyPath, value: Any) -> Any:
+    if value is False or value == "no":   # YAML reads a bare `no` as false
+        return r.error(kp, "`no` would leave the service down after a crash or reboot: use unless-stopped "
+                           "(services) or always (critical drivers and watchdogs)")
+    return _enum("always", "unless-stopped", "on-failure")(r, kp, value)
+
+
+def _order_by(r: Reader, kp: KeyPath, value: Any) -> Any:
+    return None if value is None else _string(re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*"), "group prefix")(r, kp, value)
+
+
+def _compose_extra(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """Compose keys passed through verbatim (cap_add, ulimits, ...), except those rosdeploy renders."""
+    if not isinstance(value, dict):
+        return r.error(kp, f"must be a mapping of compose service keys, e.g. {{cap_add: [SYS_NICE]}}; got {_kind(value)}")
+    for key in value:
+        if key in MANAGED_COMPOSE:
+            r.error(kp + (key,), f"`{key}` is rendered by rosdeploy: set it with the fleet key "
+                                 f"`{MANAGED_COMPOSE[key]}` instead")
+    return value
+
+
+_HEALTHCHECK = {"test": _health_test, "interval": _duration, "timeout": _duration,
+                "retries": _integer(1), "start_period": _duration}
+_TOPIC = {"name": _string(TOPIC_RE, "ROS topic name (absolute, e.g. /joint_states)"), "min_rate": _positive}
+SERVICE = {
+    "image": _image, "tag": _tag, "command": _command,
+    "environment": _named(ENV_RE, "environment variable", _text),
+    "secrets": _named(ENV_RE, "environment variable", _string(ENV_RE, "inventory variable name")),
+    "devices": _listof(_string(DEVICE_RE, "device name"), "logical device names"),
+    "gpu": _boolean, "restart": _restart,
+    "resources": _section({"memory": _size, "cpus": _positive}),
+    "healthcheck": _healthcheck,
+    "depends_on": _listof(_string(NAME_RE, "service name"), "service names"),
+    "topics": _listof(_topic, "topics"),
+    "user": _string(USER_RE, "user (name, uid or uid:gid)"),
+    "privileged": _boolean, "allow_privileged": _boolean,
+    "profiles": _listof(_string(NAME_RE, "profile name"), "profile names"),
+    "compose": _compose_extra,
+}
+SECTIONS: dict[str, Mapping[str, Convert]] = {
+    "ssh": {"known_hosts": Reader.local_path, "config": Reader.local_path,
+            "connect_timeout": _duration, "command_timeout": _duration},
+    "ros": {"rmw": _enum("fastdds", "cyclonedds"), "network_mode": _enum("host", "bridge"), "shm_size": _size},
+    "logging": {"max_size": _size, "max_file": _integer(1)},
+    "preflight": {"min_free_disk_mb": _integer(0)},
+    "health": {"timeout": _duration, "stable": _duration, "interval": _duration,
+               "topic_window": _duration, "probe_service": _string(NAME_RE, "service name")},
+    "rollout": {"waves": _listof(_wave, "waves"), "max_fail": _max_fail, "forks": _integer(1),
+                "order_by": _order_by, "pause": _duration},
+    "rollback": {"auto": _boolean, "fleet": _boolean, "keep_releases": _integer(2)},
+}
+TOP = {
+    "project": _string(NAME_RE, "project name"),
+    "inventory": Reader.local_path,
+    "registry": _registry,
+    "version": _tag,
+    "templates": Reader.local_path,
+    "deploy_root": _string(REMOTE_PATH_RE, "path on the robot (absolute or under ~)"),
+    **{name: _section(schema) for name, schema in SECTIONS.items()},
+    "services": _named(NAME_RE, "service", _section(SERVICE, required=("image",))),
+    "vars": _named(ENV_RE, "template variable", lambda r, kp, v: v),
+}
+
+
+# ---------------------------------------------------------------- loading
+
+def load_fleet(path: str | Path, *, inventory: str | None = None, version: str | None = None) -> FleetSpec:
+    """Read and validate a fleet file. `inventory` (-i) and `version` (--version) override the file's keys."""
+    try:
+        doc = yamlsrc.load(path)
+    except InputError as exc:
+        raise FleetSpecError(exc.problems) from exc
+    r = Reader(doc)
+    if not isinstance(doc.data, dict):
+        raise FleetSpecError([doc.problem((), "the fleet file must be a mapping with at least project, "
+                                              "inventory, registry, version and services (see docs/fleet-file.md)")])
+    r.scan_control_chars(doc.data)
+    required = ("project", "services") + (() if inventory else ("inventory",)) + (() if version else ("version",))
+    top = _section(TOP, required=required)(r, (), doc.data)
+    _check_paths(r, top, inventory_overridden=bool(inventory))
+    top.update(_overrides(r, inventory, version))
+    _check_services(r, top)
+    if r.problems:
+        raise FleetSpecError(sorted(r.problems, key=lambda p: (p.file != doc.path, p.line or 0)))
+    return _build(doc, top)
+
+
+def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[str, Any]:
+    """-i and --version: checked like the keys they replace, located on the command line."""
+    out: dict[str, Any] = {}
+    if inventory:
+        out["inventory"] = os.path.abspath(Path(os.path.expandvars(inventory)).expanduser())
+        if not Path(out["inventory"]).exists():
+            r.problems.append(Problem("--inventory", None, "", f"{inventory} does not exist: fix the -i path"))
+    if version is not None:
+        cli = Reader(Doc("--version", None))
+        out["version"] = _tag(cli, ("version",), version)
+        r.problems.extend(cli.problems)
+    return out
+
+
+def _check_paths(r: Reader, top: dict, inventory_overridden: bool) -> None:
+    inv = top.get("inventory")
+    if not inventory_overridden and isinstance(inv, str) and not Path(inv).exists():
+        r.error(("inventory",), f"the inventory {inv} does not exist: fix the path (relative to "
+                                "the fleet file) or pass -i")
+    tpl = top.get("templates")
+    if isinstance(tpl, str) and not Path(tpl).is_dir():
+        r.error(("templates",), f"{tpl} is not a directory: point `templates:` at a folder of *.j2 overrides "
+                                "(relative to the fleet file) or remove the key")
+
+
+def _check_services(r: Reader, top: dict) -> None:
+    services = top.get("services")
+    if not isinstance(services, dict):
+        return
+    if not services and "services" in r.doc.data:
+        r.error(("services",), "declares no service: add at least one, e.g. `driver: {image: acme/amr-driver}`")
+    for name, svc in services.items():
+        if isinstance(svc, dict):
+            _check_service(r, ("services", name), svc, services, top.get("registry"))
+    probe = top.get("health", {}).get("probe_service") if isinstance(top.get("health"), dict) else None
+    if isinstance(probe, str) and probe not in services:
+        r.error(("health", "probe_service"), f"no service is named `{probe}`{_did_you_mean(probe, services)}")
+    _check_cycles(r, services)
+
+
+def _check_service(r: Reader, kp: KeyPath, svc: dict, services: dict, registry: Any) -> None:
+    _check_image_registry(r, kp + ("image",), svc.get("image"), registry)
+    env, secrets = svc.get("environment"), svc.get("secrets")
+    for name in (env if isinstance(env, dict) else {}):
+        if name in RESERVED_ENV:
+            r.error(kp + ("environment", name), f"{name} is set per robot by rosdeploy (from the inventory and "
+                                                "`ros:`); remove it here")
+    for name in (secrets if isinstance(secrets, dict) else {}):
+        if isinstance(env, dict) and name in env:
+            r.error(kp + ("secrets", name), f"{name} is also in `environment`: keep it in one of the two")
+    for i, dep in enumerate(_deps(svc)):
+        _check_dependency(r, kp + ("depends_on", i), kp[-1], dep, services)
+
+
+def _deps(svc: Any) -> tuple:
+    """A converted service's depends_on, or () when the service or the list itself was invalid."""
+    deps = svc.get("depends_on") if isinstance(svc, dict) else None
+    return deps if isinstance(deps, tuple) else ()
+
+
+def _check_image_registry(r: Reader, kp: KeyPath, image: Any, registry: Any) -> None:
+    if not isinstance(image, str):
+        return
+    own = _has_registry_host(image)
+    if own and isinstance(registry, str):
+        r.error(kp, f"the image names its own registry ({image.split('/')[0]}) while `registry: {registry}` is set: "
+                    "drop the host from the image, or drop `registry:` and fully qualify every image")
+    elif not own and "registry" not in r.doc.data:
+        r.error(kp, f"no `registry:` is set and {image!r} has no registry host: add a top-level "
+                    f"`registry: registry.local:5000`, or write the full ref, e.g. docker.io/{image}")
+
+
+def _check_dependency(r: Reader, kp: KeyPath, name: str, dep: Any, services: dict) -> None:
+    if not isinstance(dep, str) or dep is BAD:
+        return
+    if dep == name:
+        r.error(kp, f"`{name}` cannot depend on itself; remove it from depends_on")
+    elif dep not in services:
+        r.error(kp, f"no service is named `{dep}`{_did_you_mean(dep, services)}")
+    elif isinstance(services[dep], dict) and "healthcheck" not in services[dep]:
+        r.error(kp, f"`{dep}` has no healthcheck, so it never becomes healthy and `{name}` (which waits for "
+                    f"service_healthy) would never start: give `{dep}` a healthcheck (or `healthcheck: image`)")
+
+
+def _check_cycles(r: Reader, services: dict) -> None:
+    graph = {n: [d for d in _deps(s) if d in services and d != n] for n, s in services.items()}
+    state: dict[str, int] = {}
+
+    def visit(node: str, trail: list[str]) -> None:
+        state[node] = 1
+        for dep in graph[node]:
+            if state.get(dep) == 1:
+                loop = trail[trail.index(dep):] + [dep] if dep in trail else [node, dep]
+                r.error(("services", node, "depends_on"), f"dependency cycle {' -> '.join(loop)}: "
+                                                           "compose cannot start any of them; break the cycle")
+            elif dep not in state:
+                visit(dep, trail + [dep])
+        state[node] = 2
+
+    for node in graph:
+        if node not in state:
+            visit(node, [node])
+
+
+def suggest(word: str, choices: Iterable[str]) -> list[str]:
+    """The closest choice (difflib), or one the word abbreviates (`shm` -> `shm_size`)."""
+    choices = list(choices)
+    close = difflib.get_close_matches(word, choices, n=1)
+    return close or [c for c in choices if len(word) >= 3 and c.startswith(word)][:1]
+
+
+def _did_you_mean(word: str, choices: Iterable[str]) -> str:
+    close = suggest(word, choices)
+    return f": did you mean `{close[0]}`?" if close else f"; the services are: {', '.join(choices)}"
+
+
+# --------------------------------------------------------------- building
+
+def _build(doc: Doc, top: dict) -> FleetSpec:
+    ssh, ros, logging = (top.get(k, {}) for k in ("ssh", "ros", "logging"))
+    health, rollout, rollback = (top.get(k, {}) for k in ("health", "rollout", "rollback"))
+    return FleetSpec(
+        path=doc.path, project=top["project"], inventory=top["inventory"], registry=top.get("registry", ""),
+        version=top["version"],
+        services=tuple(_service(n, s, top["version"]) for n, s in top["services"].items()),
+        rmw=ros.get("rmw", "fastdds"), network_mode=ros.get("network_mode", "host"),
+        shm_size=ros.get("shm_size", "512m"),
+        log_max_size=logging.get("max_size", "10m"), log_max_file=logging.get("max_file", 3),
+        templates=top.get("templates"), deploy_root=top.get("deploy_root", "~/rosdeploy"),
+        known_hosts=ssh.get("known_hosts"), ssh_config=ssh.get("config"),
+        connect_timeout=ssh.get("connect_timeout", 10.0), command_timeout=ssh.get("command_timeout", 600.0),
+        min_free_disk_mb=top.get("preflight", {}).get("min_free_disk_mb", 1024),
+        health=HealthPolicy(**health),
+        rollout=RolloutPolicy(**{k: tuple(v) if k == "waves" else v for k, v in rollout.items()}),
+        rollback=RollbackPolicy(**rollback),
+        vars=frozen_map(top.get("vars")),
+        lines=frozen_map(doc.lines),
+    )
+
+
+def _service(name: str, d: dict, version: str) -> Service:
+    healthcheck = d.get("healthcheck")
+    resources = d.get("resources", {})
+    return Service(
+        name=name, image=d["image"], tag=d.get("tag", version), command=d.get("command"),
+        environment=frozen_map(d.get("environment")), secret_env=frozen_map(d.get("secrets")),
+        devices=d.get("devices", ()), gpu=d.get("gpu", False), restart=d.get("restart", "unless-stopped"),
+        memory=resources.get("memory"), cpus=resources.get("cpus"),
+        healthcheck=healthcheck if isinstance(healthcheck, HealthCheck) else None,
+        healthcheck_from_image=healthcheck == HEALTH_FROM_IMAGE,
+        depends_on=d.get("depends_on", ()), topics=d.get("topics", ()), user=d.get("user"),
+        privileged=d.get("privileged", False), allow_privileged=d.get("allow_privileged", False),
+        profiles=d.get("profiles", ()), extra=frozen_map(d.get("compose")),
+    )
+
+
+def problem_at(spec: FleetSpec, keypath: KeyPath, message: str, **kw: Any) -> Problem:
+    """A Problem located in the fleet file by key path (for checks that run after loading)."""
+    return Doc(spec.path, None, dict(spec.lines)).problem(keypath, message, **kw)

@@ -1,0 +1,112 @@
+"""A fleet file with its inventory loaded: what every command starts from.
+
+    load_project(fleet) -> Project(spec, inventory)
+    project.targets(limit) -> the robots a command acts on
+    validate(project, hosts) -> every problem that must stop a deploy
+
+`validate` is the gate `deploy` runs before touching a robot: the inventory
+cross-checks (devices, secrets, domain IDs) plus every error-level rule of
+`check`, so nothing `check` calls an error can ever be deployed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any, Callable, Sequence
+
+from rosdeploy import checks
+from rosdeploy.errors import Problem, RenderError
+from rosdeploy.fleet import load_fleet
+from rosdeploy.inventory import Inventory, load_inventory
+from rosdeploy.model import FleetSpec, Host, RenderedRelease
+from rosdeploy.render import Renderer
+from rosdeploy.vault import Vault
+
+# Scopes whose rules judge the inputs (fleet file + inventory) rather than a rendered release:
+# validate reports their warnings too, since the fix is in the user's own files.
+INPUT_SCOPES = ("fleet", "host")
+
+
+@dataclass(frozen=True)
+class Project:
+    spec: FleetSpec
+    inventory: Inventory
+
+    def targets(self, limit: str | None = None) -> tuple[Host, ...]:
+        """The robots `--limit` selects (all of them without one), in inventory order."""
+        return tuple(self.inventory.select(limit))
+
+    @property
+    def secret_values(self) -> frozenset[str]:
+        """Every vault value of every robot: what output must mask."""
+        return frozenset().union(*(h.secret_values for h in self.inventory.hosts.values()))
+
+
+def load_project(fleet_path: str, *, inventory: str | None = None, version: str | None = None,
+                 vault_password_file: str | None = None, prompt: Callable[[str], str] | None = None) -> Project:
+    """Load the fleet file, then its inventory (decrypting vault files with the password sources)."""
+    spec = load_fleet(fleet_path, inventory=inventory, version=version)
+    vault = Vault(password_file=vault_password_file, prompt=prompt)
+    return Project(spec, load_inventory(spec.inventory, vault=vault))
+
+
+def render_hosts(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
+    """Render every robot whose inputs allow it; the problems are the render errors.
+
+    A robot failing an input rule (a device or secret it lacks) is skipped: the rule
+    already says what is wrong, in better words than the renderer could.
+    """
+    blocked = checks.blocked_hosts(project.spec, hosts)
+    try:
+        renderer = Renderer(project.spec)
+    except RenderError as exc:
+        return {}, list(exc.problems)
+    releases: dict[str, RenderedRelease] = {}
+    failed: dict[tuple, tuple[Problem, list[str]]] = {}
+    for host in hosts:
+        if host.name in blocked:
+            continue
+        try:
+            releases[host.name] = renderer.render(host)
+        except RenderError as exc:
+            for p in exc.problems:
+                same = (p.file, p.line, p.key, p.message.replace(host.name, ""))
+                failed.setdefault(same, (p, []))[1].append(host.name)
+    return releases, [_same_on(p, robots) for p, robots in failed.values()]
+
+
+def _same_on(p: Problem, robots: list[str]) -> Problem:
+    """A template bug fails every robot the same way: one problem, counting the others."""
+    if len(robots) == 1:
+        return p
+    return replace(p, message=f"{p.message} (the same on {len(robots) - 1} more robot(s))")
+
+
+def prepare(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
+    """Render every robot once and run every rule on the result: releases and findings, errors first."""
+    releases, problems = render_hosts(project, hosts)
+    return releases, sorted(problems + checks.run_checks(project, hosts, releases), key=checks.sort_key)
+
+
+def findings(project: Project, hosts: Sequence[Host]) -> list[Problem]:
+    """Everything `check` reports: render errors and every rule's findings, errors first."""
+    return prepare(project, hosts)[1]
+
+
+def validate(project: Project, hosts: Sequence[Host]) -> list[Problem]:
+    """What must stop a deploy (errors), plus the warnings about the inputs themselves."""
+    return gate(findings(project, hosts))
+
+
+def gate(problems: Sequence[Problem]) -> list[Problem]:
+    return [p for p in problems if p.severity == "error" or _is_input_rule(p)]
+
+
+def render_blockers(project: Project, hosts: Sequence[Host]) -> list[Problem]:
+    """Errors that keep some robot from being rendered at all (for `render`)."""
+    input_rules = [r for r in checks.RULES.values() if r.scope == "host" and r.severity == "error"]
+    return checks.run_checks(project, hosts, {}, rules=input_rules)
+
+
+def _is_input_rule(p: Problem) -> bool:
+    rule: Any = checks.RULES.get(p.rule)
+    return rule is not None and rule.scope in INPUT_SCOPES

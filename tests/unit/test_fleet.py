@@ -1,0 +1,464 @@
+"""load_fleet: every key's validation, with file:line, key path and a fix in each message."""
+from __future__ import annotations
+
+import copy
+import os
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from rosdeploy.errors import FleetSpecError, Problem
+from rosdeploy.fleet import compose_duration, load_fleet, parse_duration, problem_at, size_bytes
+from rosdeploy.model import HealthCheck, Topic
+
+DELETE = object()
+
+BASE: dict[str, Any] = {
+    "project": "warehouse",
+    "inventory": "./inventory",
+    "registry": "registry.local:5000",
+    "version": "1.4.2",
+    "services": {
+        "driver": {
+            "image": "acme/amr-driver",
+            "healthcheck": {"test": ["CMD-SHELL", "test -f /run/ok"]},
+            "topics": ["/joint_states"],
+        },
+        "navigation": {"image": "acme/amr-navigation", "depends_on": ["driver"]},
+    },
+}
+
+
+def merge(base: dict, patch: dict) -> dict:
+    out = copy.deepcopy(base)
+    for key, value in patch.items():
+        if value is DELETE:
+            out.pop(key, None)
+        elif isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+@pytest.fixture
+def fleet_dir(tmp_path: Path) -> Path:
+    (tmp_path / "inventory").mkdir()
+    (tmp_path / "inventory" / "hosts.yml").write_text("all: {}\n")
+    return tmp_path
+
+
+def write(folder: Path, data: Any = None, text: str | None = None) -> Path:
+    path = folder / "fleet.yml"
+    path.write_text(text if text is not None else yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def problems(folder: Path, patch: dict | None = None, text: str | None = None, **kw: Any) -> list[Problem]:
+    with pytest.raises(FleetSpecError) as info:
+        load_fleet(write(folder, merge(BASE, patch or {}), text), **kw)
+    return list(info.value.problems)
+
+
+def one(folder: Path, patch: dict, key: str, *words: str) -> Problem:
+    """Exactly one problem, at `key`, whose message has every word."""
+    found = problems(folder, patch)
+    assert [p.key for p in found] == [key], found
+    for word in words:
+        assert word in found[0].message, found[0].message
+    assert found[0].file.endswith("fleet.yml") and found[0].line, found[0]
+    return found[0]
+
+
+# ------------------------------------------------------------------ valid
+
+def test_minimal_fleet_gets_documented_defaults(fleet_dir: Path) -> None:
+    spec = load_fleet(write(fleet_dir, BASE))
+    assert spec.project == "warehouse" and spec.version == "1.4.2"
+    assert spec.inventory == str(fleet_dir / "inventory")
+    driver, nav = spec.services
+    assert (driver.name, driver.image, driver.tag, driver.restart) == ("driver", "acme/amr-driver", "1.4.2", "unless-stopped")
+    assert driver.healthcheck == HealthCheck(("CMD-SHELL", "test -f /run/ok"))
+    assert driver.topics == (Topic("/joint_states"),)
+    assert nav.depends_on == ("driver",)
+    assert spec.image_ref(driver) == "registry.local:5000/acme/amr-driver:1.4.2"
+    assert (spec.rmw, spec.network_mode, spec.shm_size, spec.log_max_file) == ("fastdds", "host", "512m", 3)
+    assert spec.rollback.keep_releases == 3 and spec.rollout.waves == ("100%",)
+
+
+def full_fleet(fleet_dir: Path) -> dict:
+    """BASE with every key set."""
+    (fleet_dir / "templates").mkdir(exist_ok=True)
+    return merge(BASE, {
+        "templates": "./templates", "deploy_root": "/opt/rosdeploy",
+        "ssh": {"known_hosts": "~/kh", "config": "cfg", "connect_timeout": "5s", "command_timeout": "2m"},
+        "ros": {"rmw": "cyclonedds", "network_mode": "bridge", "shm_size": "1g"},
+        "logging": {"max_size": "20m", "max_file": 5}, "preflight": {"min_free_disk_mb": 0},
+        "health": {"timeout": "2m", "stable": 5, "interval": "500ms", "topic_window": "3s", "probe_service": "driver"},
+        "rollout": {"waves": [1, "10%", "100%"], "max_fail": "5%", "forks": 20, "order_by": "site_", "pause": "1m"},
+        "rollback": {"auto": False, "fleet": False, "keep_releases": 5},
+        "vars": {"dds_lease_duration": 20},
+        "services": {"driver": {
+            "tag": "1.4.1-3f9a2c1", "command": "ros2 launch 'amr driver' x.py", "environment": {"A": 1, "B": True},
+            "secrets": {"TOKEN": "fleet_api_token"}, "devices": ["motor", "lidar"], "gpu": True, "restart": "always",
+            "resources": {"memory": "512m", "cpus": 1.5},
+            "healthcheck": {"test": "test -f /ok", "interval": 5, "timeout": "1500ms", "retries": 5, "start_period": "1m"},
+            "topics": [{"name": "/scan", "min_rate": 5}], "user": "1000:1000", "privileged": True,
+            "allow_privileged": True, "profiles": ["deploy"], "compose": {"cap_add": ["SYS_NICE"]}}},
+    })
+
+
+def test_every_key_is_read(fleet_dir: Path) -> None:
+    full = full_fleet(fleet_dir)
+    spec = load_fleet(write(fleet_dir, full))
+    d = spec.service("driver")
+    assert d.tag == "1.4.1-3f9a2c1" and spec.service("navigation").tag == "1.4.2"
+    assert d.command == ("ros2", "launch", "amr driver", "x.py")
+    assert dict(d.environment) == {"A": "1", "B": "true"} and dict(d.secret_env) == {"TOKEN": "fleet_api_token"}
+    assert d.devices == ("motor", "lidar") and d.gpu and d.restart == "always"
+    assert (d.memory, d.cpus, d.user, d.profiles) == ("512m", 1.5, "1000:1000", ("deploy",))
+    assert d.healthcheck == HealthCheck(("CMD-SHELL", "test -f /ok"), "5s", "1500ms", 5, "60s")
+    assert d.topics == (Topic("/scan", 5.0),) and d.privileged and d.allow_privileged
+    assert dict(d.extra) == {"cap_add": ["SYS_NICE"]}
+    assert spec.templates == str(fleet_dir / "templates") and spec.deploy_root == "/opt/rosdeploy"
+    assert spec.known_hosts == os.path.expanduser("~/kh") and spec.ssh_config == str(fleet_dir / "cfg")
+    assert (spec.connect_timeout, spec.command_timeout) == (5.0, 120.0)
+    assert (spec.rmw, spec.network_mode, spec.shm_size) == ("cyclonedds", "bridge", "1g")
+    assert (spec.log_max_size, spec.log_max_file, spec.min_free_disk_mb) == ("20m", 5, 0)
+    assert spec.health.timeout == 120 and spec.health.interval == 0.5 and spec.health.probe_service == "driver"
+    assert spec.rollout.waves == (1, "10%", "100%") and spec.rollout.max_fail == "5%" and spec.rollout.pause == 60
+    assert spec.rollback.auto is False and spec.rollback.keep_releases == 5
+    assert dict(spec.vars) == {"dds_lease_duration": 20}
+
+
+def test_healthcheck_image_trusts_the_image(fleet_dir: Path) -> None:
+    spec = load_fleet(write(fleet_dir, merge(BASE, {"services": {"navigation": {"healthcheck": "image"}}})))
+    nav = spec.service("navigation")
+    assert nav.healthcheck is None and nav.healthcheck_from_image
+
+
+def test_images_fully_qualified_without_registry(fleet_dir: Path) -> None:
+    data = merge(BASE, {"registry": DELETE, "services": {"driver": {"image": "ghcr.io/acme/amr-driver"},
+                                                         "navigation": {"image": "localhost:5000/nav"}}})
+    spec = load_fleet(write(fleet_dir, data))
+    assert spec.image_ref(spec.service("driver")) == "ghcr.io/acme/amr-driver:1.4.2"
+
+
+# -------------------------------------------------------------- overrides
+
+def test_version_override_keeps_pinned_tags(fleet_dir: Path) -> None:
+    data = merge(BASE, {"services": {"navigation": {"tag": "0.9.0"}}})
+    spec = load_fleet(write(fleet_dir, data), version="2.0.0")
+    assert spec.version == "2.0.0" and spec.service("driver").tag == "2.0.0"
+    assert spec.service("navigation").tag == "0.9.0"
+
+
+def test_overrides_make_the_keys_optional(fleet_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(fleet_dir)
+    spec = load_fleet(write(fleet_dir, merge(BASE, {"inventory": DELETE, "version": DELETE})),
+                      inventory="inventory/hosts.yml", version="3.0.0")
+    assert spec.inventory == str(fleet_dir / "inventory" / "hosts.yml") and spec.version == "3.0.0"
+
+
+def test_inventory_override_replaces_a_broken_key(fleet_dir: Path) -> None:
+    spec = load_fleet(write(fleet_dir, merge(BASE, {"inventory": "./nowhere"})),
+                      inventory=str(fleet_dir / "inventory"))
+    assert spec.inventory == str(fleet_dir / "inventory")
+
+
+def test_bad_overrides_are_located_on_the_command_line(fleet_dir: Path) -> None:
+    found = problems(fleet_dir, inventory="/no/such/inventory", version="latest")
+    assert {(p.file, p.key) for p in found} == {("--inventory", ""), ("--version", "version")}
+
+
+def test_inventory_expands_home_and_variables(fleet_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("FLEET_HOME", str(fleet_dir))
+    monkeypatch.setenv("HOME", str(fleet_dir))
+    assert load_fleet(write(fleet_dir, merge(BASE, {"inventory": "$FLEET_HOME/inventory"}))).inventory \
+        == str(fleet_dir / "inventory")
+    assert load_fleet(write(fleet_dir, merge(BASE, {"inventory": "~/inventory"}))).inventory \
+        == str(fleet_dir / "inventory")
+
+
+# -------------------------------------------------------- top-level errors
+
+@pytest.mark.parametrize("patch, key, words", [
+    ({"project": "Ware House"}, "project", ["not a valid project name", "lower-case"]),
+    ({"project": "a;reboot"}, "project", ["not a valid project name"]),
+    ({"project": 7}, "project", ["must be a string"]),
+    ({"inventory": "./missing"}, "inventory", ["does not exist", "pass -i"]),
+    ({"inventory": "$ROSDEPLOY_TEST_UNSET/x"}, "inventory", ["$ROSDEPLOY_TEST_UNSET is not set"]),
+    ({"registry": "https://registry.local"}, "registry", ["without a scheme"]),
+    ({"version": "latest"}, "version", ["not a release version"]),
+    ({"version": ""}, "version", ["not a release version"]),
+    ({"version": 1.4}, "version", ["quote it"]),
+    ({"version": "1.0;reboot"}, "version", ["not a valid image tag"]),
+    ({"version": "$(reboot)"}, "version", ["not a valid image tag"]),
+    ({"templates": "./no-templates"}, "templates", ["is not a directory"]),
+    ({"deploy_root": "~/r; rm -rf /"}, "deploy_root", ["path on the robot"]),
+    ({"deploy_root": "relative/dir"}, "deploy_root", ["absolute path or one under ~"]),
+    ({"ssh": {"connect_timeout": "soon"}}, "ssh.connect_timeout", ["duration like 90, 90s, 2m"]),
+    ({"ssh": "fast"}, "ssh", ["must be a mapping"]),
+    ({"ros": {"rmw": "zenoh"}}, "ros.rmw", ["one of fastdds, cyclonedds"]),
+    ({"ros": {"network_mode": "macvlan"}}, "ros.network_mode", ["one of host, bridge"]),
+    ({"ros": {"shm_size": 512}}, "ros.shm_size", ["with a unit like 512m"]),
+    ({"logging": {"max_file": 0}}, "logging.max_file", ["whole number >= 1"]),
+    ({"logging": {"max_size": "lots"}}, "logging.max_size", ["size with a unit"]),
+    ({"preflight": {"min_free_disk_mb": -1}}, "preflight.min_free_disk_mb", ["whole number >= 0"]),
+    ({"health": {"timeout": "-5s"}}, "health.timeout", ["duration"]),
+    ({"health": {"probe_service": "drivr"}}, "health.probe_service", ["did you mean `driver`"]),
+    ({"rollout": {"waves": [1, "150%"]}}, "rollout.waves[1]", ["percentage of the targets"]),
+    ({"rollout": {"waves": "10%"}}, "rollout.waves", ["must be a list"]),
+    ({"rollout": {"waves": [True]}}, "rollout.waves[0]", ["robot count"]),
+    ({"rollout": {"max_fail": -1}}, "rollout.max_fail", ["robot count"]),
+    ({"rollout": {"forks": 0}}, "rollout.forks", [">= 1"]),
+    ({"rollout": {"order_by": "site north"}}, "rollout.order_by", ["not a valid group prefix"]),
+    ({"rollout": {"pause": "a while"}}, "rollout.pause", ["duration"]),
+    ({"rollback": {"keep_releases": 1}}, "rollback.keep_releases", [">= 2"]),
+    ({"rollback": {"auto": "yes"}}, "rollback.auto", ["true or false"]),
+    ({"vars": {"bad-name": 1}}, "vars.bad-name", ["not a valid template variable name"]),
+    ({"services": ["driver"]}, "services", ["must be a mapping of service names"]),
+])
+def test_top_level_values_are_checked(fleet_dir: Path, patch: dict, key: str, words: list[str]) -> None:
+    one(fleet_dir, patch, key, *words)
+
+
+def test_services_must_not_be_empty(fleet_dir: Path) -> None:
+    found = problems(fleet_dir, text=yaml.safe_dump({**BASE, "services": {}}))
+    assert [p.key for p in found] == ["services"] and "declares no service" in found[0].message
+
+
+@pytest.mark.parametrize("missing", ["project", "inventory", "version", "services"])
+def test_required_keys(fleet_dir: Path, missing: str) -> None:
+    one(fleet_dir, {missing: DELETE}, missing, "required key missing")
+
+
+# --------------------------------------------------------- service errors
+
+def svc(patch: dict) -> dict:
+    return {"services": {"driver": patch}}
+
+
+@pytest.mark.parametrize("patch, key, words", [
+    ({"image": "acme/amr-driver:1.2"}, "image", ["must not carry a tag", 'tag: "1.2"', "version"]),
+    ({"image": "registry.local:5000/acme/amr-driver:latest"}, "image", ["must not carry a tag"]),
+    ({"image": "acme/amr-driver@sha256:abc"}, "image", ["digest", "tag:"]),
+    ({"image": "ghcr.io/acme/amr-driver"}, "image", ["names its own registry (ghcr.io)"]),
+    ({"image": "Acme/Driver"}, "image", ["not a valid image repository"]),
+    ({"image": "acme/driver;reboot"}, "image", ["not a valid image repository"]),
+    ({"image": None}, "image", ["must be a string"]),
+    ({"tag": "latest"}, "tag", ["not a release version"]),
+    ({"tag": " "}, "tag", ["not a release version"]),
+    ({"command": "ros2 launch 'unbalanced"}, "command", ["cannot split", "as a list"]),
+    ({"command": []}, "command", ["non-empty list"]),
+    ({"command": [["nested"]]}, "command[0]", ["string, number"]),
+    ({"environment": {"ROS_DOMAIN_ID": 3}}, "environment.ROS_DOMAIN_ID", ["set per robot by rosdeploy"]),
+    ({"environment": {"LIST": [1]}}, "environment.LIST", ["string, number or true/false"]),
+    ({"environment": {"1BAD": "x"}}, "environment.1BAD", ["not a valid environment variable name"]),
+    ({"environment": {"T": "x"}, "secrets": {"T": "tok"}}, "secrets.T", ["also in `environment`"]),
+    ({"secrets": {"TOKEN": "fleet token"}}, "secrets.TOKEN", ["inventory variable name"]),
+    ({"devices": ["motor", "motor"]}, "devices[1]", ["listed twice"]),
+    ({"devices": ["../motor"]}, "devices[0]", ["device name"]),
+    ({"devices": "motor"}, "devices", ["must be a list"]),
+    ({"gpu": "yes"}, "gpu", ["true or false"]),
+    ({"restart": False}, "restart", ["unless-stopped"]),
+    ({"restart": "sometimes"}, "restart", ["one of always, unless-stopped, on-failure"]),
+    ({"resources": {"memory": 512}}, "resources.memory", ["unit"]),
+    ({"resources": {"cpus": 0}}, "resources.cpus", ["above 0"]),
+    ({"resources": {"gpus": 1}}, "resources.gpus", ["unknown key"]),
+    ({"healthcheck": "yes"}, "healthcheck", ["`image` to trust"]),
+    ({"healthcheck": {"test": DELETE, "interval": "5s"}}, "healthcheck.test", ["required key missing"]),
+    ({"healthcheck": {"test": ["ros2", "topic", "list"]}}, "healthcheck.test", ["CMD or CMD-SHELL"]),
+    ({"healthcheck": {"test": "x", "retries": 0}}, "healthcheck.retries", [">= 1"]),
+    ({"healthcheck": {"test": "x", "timeout": "3 s"}}, "healthcheck.timeout", ["duration"]),
+    ({"depends_on": ["navigaton"]}, "depends_on[0]", ["did you mean `navigation`"]),
+    ({"depends_on": ["driver"]}, "depends_on[0]", ["cannot depend on itself"]),
+    ({"topics": ["joint_states"]}, "topics[0].name", ["absolute"]),
+    ({"topics": [{"name": "/a", "min_rate": 0}]}, "topics[0].min_rate", ["above 0"]),
+    ({"topics": [{"name": "/a", "rate": 5}]}, "topics[0].rate", ["did you mean `min_rate`"]),
+    ({"user": 1000}, "user", ["quote it"]),
+    ({"user": "root; reboot"}, "user", ["uid:gid"]),
+    ({"privileged": "no"}, "privileged", ["true or false"]),
+    ({"profiles": ["Deploy"]}, "profiles[0]", ["profile name"]),
+    ({"compose": {"restart": "always"}}, "compose.restart", ["fleet key `restart`"]),
+    ({"compose": {"group_add": ["dialout"]}}, "compose.group_add", ["devices"]),
+    ({"compose": ["cap_add"]}, "compose", ["mapping of compose service keys"]),
+])
+def test_service_values_are_checked(fleet_dir: Path, patch: dict, key: str, words: list[str]) -> None:
+    one(fleet_dir, svc(patch), f"services.driver.{key}", *words)
+
+
+def test_service_name_must_be_an_identifier(fleet_dir: Path) -> None:
+    one(fleet_dir, {"services": {"bad name; reboot": {"image": "acme/x"}}}, "services.bad name; reboot",
+        "not a valid service name")
+
+
+def test_image_is_required(fleet_dir: Path) -> None:
+    one(fleet_dir, {"services": {"watchdog": {"restart": "always"}}}, "services.watchdog.image", "required key missing")
+
+
+def test_no_registry_needs_fully_qualified_images(fleet_dir: Path) -> None:
+    found = problems(fleet_dir, {"registry": DELETE})
+    assert {p.key for p in found} == {"services.driver.image", "services.navigation.image"}
+    assert "docker.io/acme/amr-driver" in found[0].message
+
+
+def test_dependency_without_healthcheck_never_starts(fleet_dir: Path) -> None:
+    data = {"services": {"driver": {"healthcheck": DELETE}}}
+    one(fleet_dir, data, "services.navigation.depends_on[0]", "no healthcheck", "service_healthy")
+
+
+def test_dependency_cycle(fleet_dir: Path) -> None:
+    found = problems(fleet_dir, {"services": {"driver": {"depends_on": ["navigation"]},
+                                              "navigation": {"healthcheck": "image"}}})
+    assert len(found) == 1 and "dependency cycle driver -> navigation -> driver" in found[0].message
+
+
+# ------------------------------------------------------------ did-you-mean
+
+@pytest.mark.parametrize("patch, key, suggestion", [
+    ({"servics": {}}, "servics", "services"),
+    ({"registy": "r"}, "registy", "registry"),
+    ({"rollout": {"wave": [1]}}, "rollout.wave", "waves"),
+    ({"ros": {"shm": "1g"}}, "ros.shm", "shm_size"),
+    ({"services": {"driver": {"enviroment": {}}}}, "services.driver.enviroment", "environment"),
+    ({"services": {"driver": {"healthcheck": {"test": "x", "intervall": 5}}}},
+     "services.driver.healthcheck.intervall", "interval"),
+])
+def test_unknown_keys_suggest_the_closest(fleet_dir: Path, patch: dict, key: str, suggestion: str) -> None:
+    one(fleet_dir, patch, key, f"did you mean `{suggestion}`?")
+
+
+def test_unknown_key_without_a_close_match_lists_the_keys(fleet_dir: Path) -> None:
+    one(fleet_dir, {"zzz": 1}, "zzz", "the keys here are: project, inventory")
+
+
+def test_misspelt_required_key_is_reported_once(fleet_dir: Path) -> None:
+    data = merge(BASE, {})
+    data["servics"] = data.pop("services")
+    with pytest.raises(FleetSpecError) as info:
+        load_fleet(write(fleet_dir, data))
+    assert [p.key for p in info.value.problems] == ["servics"]
+
+
+# ------------------------------------------- values that break files/shells
+
+@pytest.mark.parametrize("patch, key", [
+    ({"services": {"driver": {"environment": {"MOTD": "a\nb"}}}}, "services.driver.environment.MOTD"),
+    ({"services": {"driver": {"command": ["echo", "a\0b"]}}}, "services.driver.command[1]"),
+    ({"vars": {"note": "x\ry"}}, "vars.note"),
+    ({"version": "1.0\n"}, "version"),
+    ({"project": "ware\nhouse"}, "project"),
+])
+def test_control_characters_are_refused_once(fleet_dir: Path, patch: dict, key: str) -> None:
+    one(fleet_dir, patch, key, "write it on one line")
+
+
+def test_control_character_in_a_key(fleet_dir: Path) -> None:
+    found = problems(fleet_dir, text=yaml.safe_dump(merge(BASE, {"vars": {"a\nb": 1}})))
+    assert any(p.key == "vars.a\nb" and "key contains a newline" in p.message for p in found)
+
+
+def test_shell_metacharacters_in_free_text_stay_data(fleet_dir: Path) -> None:
+    env = {"services": {"driver": {"environment": {"CMD": "$(reboot); `x` | y"}}}}
+    spec = load_fleet(write(fleet_dir, merge(BASE, env)))
+    assert spec.service("driver").environment["CMD"] == "$(reboot); `x` | y"
+
+
+# ------------------------------------------------------------ whole files
+
+def test_malformed_yaml_names_file_and_line(fleet_dir: Path) -> None:
+    found = problems(fleet_dir, text="project: warehouse\nservices: [unclosed\n")
+    assert len(found) == 1 and found[0].line == 3 and "invalid YAML" in found[0].message
+
+
+def test_duplicate_key(fleet_dir: Path) -> None:
+    found = problems(fleet_dir, text="project: a\nproject: b\n")
+    assert found[0].line == 2 and "duplicate key" in found[0].message
+
+
+@pytest.mark.parametrize("text", ["", "- a\n- b\n", "just text\n"])
+def test_not_a_mapping(fleet_dir: Path, text: str) -> None:
+    found = problems(fleet_dir, text=text)
+    assert len(found) == 1 and "must be a mapping" in found[0].message
+
+
+def test_missing_file() -> None:
+    with pytest.raises(FleetSpecError) as info:
+        load_fleet("/no/such/fleet.yml")
+    assert "cannot read file" in str(info.value)
+
+
+def test_all_problems_are_collected_sorted_by_line(fleet_dir: Path) -> None:
+    text = ("project: Bad\ninventory: ./inventory\nregistry: r.local\nversion: latest\n"
+            "services:\n  driver:\n    image: acme/d:1\n    restart: no\n")
+    found = problems(fleet_dir, text=text)
+    assert [(p.line, p.key) for p in found] == [
+        (1, "project"), (4, "version"), (7, "services.driver.image"), (8, "services.driver.restart")]
+    assert str(found[0]).startswith(f"{fleet_dir / 'fleet.yml'}:1: project: 'Bad' is not a valid project name")
+
+
+def test_spec_keeps_lines_for_later_checks(fleet_dir: Path) -> None:
+    spec = load_fleet(write(fleet_dir, text="project: w\ninventory: ./inventory\nregistry: r.local\n"
+                                            "version: '1'\nservices:\n  driver:\n    image: acme/d\n"))
+    p = problem_at(spec, ("services", "driver", "restart"), "m")
+    assert (p.line, p.key) == (6, "services.driver.restart")
+
+
+# ---------------------------------------------------------------- values
+
+@pytest.mark.parametrize("text, seconds", [
+    (90, 90), (1.5, 1.5), ("90", 90), ("90s", 90), ("2m", 120), ("1m30s", 90), ("500ms", 0.5), ("1h", 3600)])
+def test_durations(text: Any, seconds: float) -> None:
+    assert parse_duration(text) == seconds
+
+
+@pytest.mark.parametrize("text", ["", "s", "5x", "-1", -1, "1 m", True, None, "1m-5s"])
+def test_bad_durations(text: Any) -> None:
+    with pytest.raises(ValueError):
+        parse_duration(text)
+
+
+def test_compose_durations() -> None:
+    assert [compose_duration(s) for s in (5, 90.0, 1.5)] == ["5s", "90s", "1500ms"]
+
+
+@pytest.mark.parametrize("text, size", [("512m", 512 << 20), ("1g", 1 << 30), ("256MB", 256 << 20),
+                                        ("64k", 64 << 10), ("1024", 1024), (2048, 2048)])
+def test_sizes(text: Any, size: int) -> None:
+    assert size_bytes(text) == size
+
+
+# ----------------------------------------------------------- no tracebacks
+
+def _paths(value: Any, kp: tuple = ()) -> list[tuple]:
+    out = [kp] if kp else []
+    if isinstance(value, dict):
+        for key, item in value.items():
+            out += _paths(item, kp + (key,))
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            out += _paths(item, kp + (i,))
+    return out
+
+
+def _replace(data: Any, kp: tuple, value: Any) -> Any:
+    data = copy.deepcopy(data)
+    target = data
+    for part in kp[:-1]:
+        target = target[part]
+    target[kp[-1]] = value
+    return data
+
+
+def test_any_wrong_value_anywhere_is_a_clean_error(fleet_dir: Path) -> None:
+    """Every key, replaced by every kind of wrong value: FleetSpecError or a spec, never a crash."""
+    example = full_fleet(fleet_dir)
+    for kp in _paths(example):
+        for wrong in (None, -1, "x", [], {"x": 1}, True):
+            try:
+                load_fleet(write(fleet_dir, _replace(example, kp, wrong)))
+            except FleetSpecError as exc:
+                assert exc.problems and all(p.file and p.message for p in exc.problems)
