@@ -55,8 +55,14 @@ ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project" 2>/dev/
 [ -n "$ids" ] && docker inspect --format '{"name":{{json .Name}},"service":{{json (index .Config.Labels "com.docker.compose.service")}},"image":{{json .Config.Image}},"status":{{json .State.Status}},"health":{{if .State.Health}}{{json .State.Health.Status}}{{else}}null{{end}},"restarts":{{.RestartCount}},"started":{{json .State.StartedAt}},"workdir":{{json (index .Config.Labels "com.docker.compose.project.working_dir")}}}' $ids 2>/dev/null
 '''
 
-STATE_SCRIPT = _PROLOGUE + r'''
-want_compose=$1; want_gpu=$2; shift 2
+# One `docker ps` (a single CLI start, the cost that matters when a machine hosts
+# many targets) gives state, health (in the status text) and the release dir.
+_PS = r"""
+docker ps -a --filter "label=com.docker.compose.project=$project" --format '{"name":{{json .Names}},"service":{{json (.Label "com.docker.compose.service")}},"image":{{json .Image}},"status":{{json .State}},"ps_status":{{json .Status}},"workdir":{{json (.Label "com.docker.compose.project.working_dir")}}}' 2>/dev/null
+"""
+
+STATE_SCRIPT = _PROLOGUE + r"""
+mode=$1; want_compose=$2; want_gpu=$3; shift 3
 section() { printf '\n@@%s\n' "$1"; }
 section home; printf '%s\n' "$HOME"
 section dir; printf '%s\n' "$dir"
@@ -65,42 +71,50 @@ section manifest; cat "$dir/current/manifest.json" 2>/dev/null || true
 section lock; cat "$dir/.lock/owner" 2>/dev/null || true
 section releases; ls -1 "$dir/releases" 2>/dev/null | grep -v '^\.' || true
 section history; tail -n 50 "$dir/history.jsonl" 2>/dev/null || true
-section docker; docker version --format '{{.Server.Version}}' 2>&1 || true
-section compose
-if [ "$want_compose" != v1 ] && docker compose version --short >/dev/null 2>&1; then
-  printf 'v2 %s\n' "$(docker compose version --short)"
-elif command -v docker-compose >/dev/null 2>&1; then
-  printf 'v1 %s\n' "$(docker-compose version --short 2>/dev/null)"
-fi
 section containers
-''' + _INSPECT + r'''
-section disk
-p=$root; while [ ! -d "$p" ]; do p=$(dirname "$p"); done
-df -Pk "$p" 2>/dev/null | awk 'NR==2 {print int($4/1024)}'
-section gpu
-if [ "$want_gpu" = yes ]; then docker info --format '{{json .Runtimes}}' 2>/dev/null; fi
-section devices
-for d in "$@"; do [ -e "$d" ] || printf 'missing %s\n' "$d"; done
+""" + _PS + r"""
+if [ "$mode" = full ]; then
+  section docker; docker version --format '{{.Server.Version}}' 2>&1 || true
+  section compose
+  if [ "$want_compose" != v1 ] && v=$(docker compose version --short 2>/dev/null); then printf 'v2 %s\n' "$v"
+  elif v=$(docker-compose version --short 2>/dev/null); then printf 'v1 %s\n' "$v"
+  fi
+  section disk
+  p=$root; while [ ! -d "$p" ]; do p=$(dirname "$p"); done
+  df -Pk "$p" 2>/dev/null | awk 'NR==2 {print int($4/1024)}'
+  section gpu
+  if [ "$want_gpu" = yes ]; then docker info --format '{{json .Runtimes}}' 2>/dev/null; fi
+  section devices
+  for d in "$@"; do [ -e "$d" ] || printf 'missing %s\n' "$d"; done
+fi
 section end
-'''
+"""
 
 
 def state(root: str, project: str, devices: tuple[str, ...] = (), compose: str = "auto",
-          gpu: bool = False) -> Command:
-    """Everything apply/plan/status need to know about a robot, in ONE round trip."""
-    return script("state", STATE_SCRIPT, root, project, compose, "yes" if gpu else "no", *devices)
+          gpu: bool = False, full: bool = True) -> Command:
+    """What apply/plan/status need to know about a robot, in ONE round trip.
+
+    Quick (full=False) is enough to tell a no-op and to show status; full adds the
+    preflight facts (Docker and Compose versions, disk, devices, GPU runtime).
+    """
+    return script("state" if full else "state (quick)", STATE_SCRIPT, root, project,
+                  "full" if full else "quick", compose, "yes" if gpu else "no", *devices)
 
 
 LOCK_SCRIPT = _PROLOGUE + r'''
 owner=$1; break_stale=$2
-mkdir -p "$dir/releases" "$dir/logs"
+mkdir -p "$dir/releases" "$dir/logs" || { echo "cannot create $dir (owned by another user?)" >&2; exit 1; }
 if [ "$break_stale" = yes ]; then rm -rf "$dir/.lock"; fi
 if mkdir "$dir/.lock" 2>/dev/null; then
   printf '%s\n' "$owner" > "$dir/.lock/owner"
   echo locked
-else
+elif [ -d "$dir/.lock" ]; then
   printf 'held '; cat "$dir/.lock/owner" 2>/dev/null || echo '{}'
   exit 3
+else
+  echo "cannot create the lock $dir/.lock: check the deploy root's owner and permissions" >&2
+  exit 1
 fi
 '''
 

@@ -21,7 +21,7 @@ from datetime import datetime, timezone
 from typing import Callable, Iterator
 
 from rosdeploy import __version__, commands
-from rosdeploy.errors import ConnectError, RemoteError
+from rosdeploy.errors import CommandFailed, ConnectError, RemoteError
 from rosdeploy.health import Verdict, expected_services, wait_healthy
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
@@ -104,10 +104,10 @@ class RobotRun:
     def wants_gpu(self) -> bool:
         return self.host.gpu and any(s.gpu for s in self.spec.services)
 
-    def read_state(self) -> RobotState:
-        with self.step("state"):
+    def read_state(self, full: bool = True) -> RobotState:
+        with self.step("state" if full else "check"):
             out = self.t.run(commands.state(self.root, self.spec.project, self.devices(),
-                                            self.compose_pref, self.wants_gpu()))
+                                            self.compose_pref, self.wants_gpu(), full=full))
         return parse_state(out.stdout)
 
     def lock(self) -> str | None:
@@ -120,6 +120,8 @@ class RobotRun:
                 if out.ok:
                     self.locked = True
                     return None
+                if out.exited != 3:
+                    raise CommandFailed(self.host.name, out, "lock")
                 if time.monotonic() >= deadline or self.ctx.cancel.is_set():
                     return out.stdout.replace("held ", "", 1).strip() or out.stderr.strip()
                 time.sleep(1.0)
@@ -209,13 +211,14 @@ def apply_host(ctx: RunContext, host: Host, release: RenderedRelease) -> HostRes
 
 
 def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
-    state = run.read_state()
+    state = run.read_state(full=False)
     new, old = release.release_id, state.current
     base = {"old_release": old, "new_release": new}
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before this robot started", **base)
     if state.lock is None and up_to_date(state, release, run.spec):
         return run.result(UNCHANGED, running_release=old, reason="already on this release and healthy", **base)
+    state = run.read_state(full=True)    # the preflight facts, only when something will change
     problems = preflight(state, run, run.spec.min_free_disk_mb)
     if problems:
         return run.result(FAILED, running_release=old, reason="preflight: " + "; ".join(problems), **base)

@@ -25,15 +25,26 @@ class Container:
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> "Container":
+        """From `docker inspect` (health, restarts) or `docker ps` (health in the status text)."""
+        health = data.get("health") if "ps_status" not in data else _ps_health(str(data["ps_status"]))
         return cls(name=str(data.get("name", "")).lstrip("/"), service=str(data.get("service") or ""),
                    image=str(data.get("image", "")), status=str(data.get("status", "")),
-                   health=data.get("health"), restarts=int(data.get("restarts") or 0),
+                   health=health, restarts=int(data.get("restarts") or 0),
                    workdir=str(data.get("workdir") or ""))
+
 
     @property
     def release(self) -> str:
         """Release id this container was started from (compose records its working dir)."""
         return self.workdir.rstrip("/").rsplit("/", 1)[-1] if "/releases/" in self.workdir else ""
+
+
+def _ps_health(status: str) -> str | None:
+    """'Up 5 minutes (healthy)' -> healthy; '(health: starting)' -> starting; no check -> None."""
+    for word in ("unhealthy", "healthy", "starting"):
+        if f"({word})" in status or f"(health: {word})" in status:
+            return word
+    return None
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,6 @@ class RobotStatus:
     services: tuple[Mapping[str, Any], ...] = ()
     deployed_by: str | None = None
     deployed_at: str | None = None
-    compose: str | None = None
     lock: Mapping[str, Any] | None = None
 
 
@@ -36,7 +35,7 @@ def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) ->
     run = RobotRun(ctx, host)
     try:
         run.open()
-        state = run.read_state()
+        state = run.read_state(full=False)
     except RemoteError as exc:
         return RobotStatus(host.name, False, error=str(exc))
     finally:
@@ -51,7 +50,7 @@ def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) ->
         services=tuple({"service": c.service, "status": c.status, "health": c.health, "restarts": c.restarts,
                         "image": c.image} for c in state.containers),
         deployed_by=manifest.get("deployed_by"), deployed_at=manifest.get("deployed_at"),
-        compose=" ".join(state.compose) if state.compose else None, lock=state.lock)
+        lock=state.lock)
 
 
 @dataclass(frozen=True)
@@ -103,7 +102,7 @@ def history_host(ctx: RunContext, host: Host) -> tuple[bool, str, tuple[Mapping[
     run = RobotRun(ctx, host)
     try:
         run.open()
-        state = run.read_state()
+        state = run.read_state(full=False)
     except RemoteError as exc:
         return False, str(exc), ()
     finally:

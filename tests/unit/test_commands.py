@@ -133,3 +133,11 @@ def test_upload_prepares_log_dirs_a_non_root_container_can_write(tmp_path: Path)
     for service in ("driver", "perception"):
         mode = (tmp_path / f"r/demo/logs/{service}").stat().st_mode & 0o7777
         assert mode == 0o1777
+
+
+def test_a_lock_that_cannot_be_created_is_an_error_not_held(tmp_path: Path) -> None:
+    (tmp_path / "r").mkdir()
+    (tmp_path / "r" / "demo").write_text("a file where the project dir should be")
+    out = run_local(commands.lock("~/r", "demo", {"run": "A"}), tmp_path)
+    assert out.returncode not in (0, 3)
+    assert b"cannot create" in out.stderr

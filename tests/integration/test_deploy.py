@@ -1,0 +1,169 @@
+"""Deploying to the simulated fleet: real sshd, real Docker engines, real registry, real ROS 2 nodes.
+
+Every test asserts what the robots really run (docker inspect over SSH), not
+only what rosdeploy says.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from rosdeploy import sim as simulator
+from rosdeploy.errors import EXIT_ABORTED, EXIT_OK, EXIT_PARTIAL
+from robots import RobotShell, all_healthy, rosdeploy, shells, versions, write_fleet, write_inventory
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.fixture
+def fleet_file(fleet, tmp_path: Path) -> Path:
+    return write_fleet(tmp_path, write_inventory(fleet, tmp_path))
+
+
+def deploy(fleet_file: Path, *args: str):
+    return rosdeploy("--json", "apply", fleet_file, "--yes", *args)
+
+
+def test_first_deploy_noop_and_single_robot_upgrade(fleet, fleet_file: Path) -> None:
+    first = deploy(fleet_file)
+    assert first.code == EXIT_OK, first.stderr
+    robots = shells(fleet)
+    for name, shell in robots.items():
+        assert first.host(name)["outcome"] == "deployed"
+        assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"}
+        assert all_healthy(shell)
+        assert shell.current() == first.host(name)["new_release"]
+    before = {name: shell.containers() for name, shell in robots.items()}
+
+    again = deploy(fleet_file)
+    assert again.code == EXIT_OK
+    assert {h["outcome"] for h in again.doc["hosts"]} == {"unchanged"}
+    for name, shell in robots.items():
+        now = shell.containers()
+        assert {s: (c["id"], c["started"], c["restarts"]) for s, c in now.items()} == \
+               {s: (c["id"], c["started"], c["restarts"]) for s, c in before[name].items()}, "no-op restarted"
+
+    upgrade = deploy(fleet_file, "--limit", "robot2", "--version", "1.1.0")
+    assert upgrade.code == EXIT_OK, upgrade.stderr
+    assert [h["host"] for h in upgrade.doc["hosts"]] == ["robot2"]
+    assert versions(robots["robot2"]) == {"driver": "1.1.0", "perception": "1.1.0"}
+    for name in ("robot1", "robot3"):
+        assert robots[name].containers()["driver"]["id"] == before[name]["driver"]["id"]
+
+    status = rosdeploy("--json", "status", fleet_file)
+    by_host = {r["host"]: r for r in status.doc["robots"]}
+    assert by_host["robot2"]["version"] == "1.1.0" and by_host["robot2"]["drift"] is True
+    assert by_host["robot1"]["version"] == "1.0.0" and by_host["robot1"]["healthy"]
+    assert status.code == EXIT_PARTIAL, "drift is reported in the exit code"
+
+
+def test_bad_release_rolls_back_every_robot_to_what_it_ran(fleet, fleet_file: Path) -> None:
+    assert deploy(fleet_file).code == EXIT_OK
+    robots = shells(fleet)
+    was = {name: shell.current() for name, shell in robots.items()}
+
+    bad = deploy(fleet_file, "--version", "1.2.0-bad", "--waves", "100%")
+    assert bad.code == EXIT_ABORTED, bad.stderr
+    for name, shell in robots.items():
+        result = bad.host(name)
+        assert result["outcome"] == "rolled-back", result
+        assert result["failed_service"] in ("driver", "perception")
+        assert result["logs"], "the failing service's logs are reported"
+        assert shell.current() == was[name]
+        assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"}
+        assert all_healthy(shell)
+        events = [(h["event"], h["result"]) for h in shell.history()]
+        assert events[-2:] == [("deploy", "failed"), ("auto-rollback", "active")]
+
+
+def test_canary_stops_a_bad_release(fleet, fleet_file: Path) -> None:
+    assert deploy(fleet_file).code == EXIT_OK
+    robots = shells(fleet)
+    before = {name: shell.containers()["driver"]["id"] for name, shell in robots.items()}
+    bad = deploy(fleet_file, "--version", "1.2.0-bad", "--waves", "1,100%")
+    assert bad.code == EXIT_ABORTED
+    assert bad.host("robot1")["outcome"] == "rolled-back"
+    assert {bad.host(n)["outcome"] for n in ("robot2", "robot3")} == {"skipped"}
+    for name in ("robot2", "robot3"):
+        assert robots[name].containers()["driver"]["id"] == before[name], "the rest of the fleet never changed"
+
+
+def test_emergency_rollback_works_with_the_registry_down(fleet, fleet_file: Path) -> None:
+    assert deploy(fleet_file).code == EXIT_OK
+    assert deploy(fleet_file, "--version", "1.1.0").code == EXIT_OK
+    simulator.stop_registry()
+    try:
+        back = rosdeploy("--json", "rollback", fleet_file, "--yes")
+    finally:
+        simulator.start_registry()
+    assert back.code == EXIT_OK, back.stderr
+    for name, shell in shells(fleet).items():
+        assert back.host(name)["outcome"] == "switched"
+        assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"}
+        assert all_healthy(shell)
+        assert shell.history()[-1]["event"] == "rollback"
+
+
+def test_registry_down_fails_the_pull_and_changes_nothing(fleet, fleet_file: Path) -> None:
+    assert deploy(fleet_file, "--limit", "robot1").code == EXIT_OK
+    shell = RobotShell(fleet, "robot1")
+    before = shell.containers()
+    simulator.stop_registry()
+    try:
+        run = deploy(fleet_file, "--limit", "robot1", "--version", "1.1.0")
+    finally:
+        simulator.start_registry()
+    assert run.code != EXIT_OK
+    assert run.host("robot1")["outcome"] == "failed" and "pull failed" in run.host("robot1")["reason"]
+    assert shell.containers() == before
+    assert not any(r.startswith("1.1.0") for r in shell.run("ls /home/robot/rosdeploy/demo/releases").split())
+
+
+def test_missing_device_fails_preflight_and_keeps_running(fleet, fleet_file: Path) -> None:
+    assert deploy(fleet_file, "--limit", "robot3").code == EXIT_OK
+    shell = RobotShell(fleet, "robot3")
+    before = shell.containers()
+    simulator.robot_exec("robot3", ["rm", "-f", "/dev/ttyUSB0"])
+    run = deploy(fleet_file, "--limit", "robot3", "--version", "1.1.0")
+    assert run.code == EXIT_PARTIAL
+    reason = run.host("robot3")["reason"]
+    assert "preflight" in reason and "/dev/robot/motor" in reason and "devices.motor" in reason
+    assert shell.containers() == before, "the running release keeps running"
+
+
+def test_changed_host_key_is_refused(fleet, fleet_file: Path) -> None:
+    simulator.regenerate_host_key("robot2")
+    run = deploy(fleet_file)
+    result = run.host("robot2")
+    assert result["outcome"] == "unreachable" and "HOST KEY CHANGED" in result["reason"]
+    # robot2's key no longer matches known_hosts, so look inside it without SSH
+    inside = simulator.robot_exec("robot2", ["docker", "ps", "-aq"])
+    assert inside.stdout.strip() == "", "nothing was deployed to the robot with the changed key"
+    assert run.host("robot1")["outcome"] == "deployed"
+
+
+def test_locked_robot_is_not_deployed_twice(fleet, fleet_file: Path) -> None:
+    simulator.robot_exec("robot1", ["su", "robot", "-c",
+                                    "mkdir -p ~/rosdeploy/demo/.lock && echo '{\"by\": \"alice@ops\"}' "
+                                    "> ~/rosdeploy/demo/.lock/owner"])
+    run = deploy(fleet_file, "--limit", "robot1")
+    assert run.host("robot1")["outcome"] == "locked" and "alice@ops" in run.host("robot1")["reason"]
+    assert RobotShell(fleet, "robot1").containers() == {}
+    broke = deploy(fleet_file, "--limit", "robot1", "--break-lock")
+    assert broke.host("robot1")["outcome"] == "deployed"
+
+
+@pytest.mark.parametrize("user,compose,home", [("root", "v2", "/root"), ("robot", "v1", "/home/robot")])
+def test_users_and_compose_flavours(fleet, tmp_path: Path, user: str, compose: str, home: str) -> None:
+    inventory = write_inventory(fleet, tmp_path, ansible_user=user, rosdeploy_compose=compose)
+    fleet_file = write_fleet(tmp_path, inventory)
+    run = deploy(fleet_file, "--limit", "robot1")
+    assert run.code == EXIT_OK, run.stderr
+    shell = RobotShell(fleet, "robot1")
+    assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"} and all_healthy(shell)
+    assert shell.current(home=home) == run.host("robot1")["new_release"]
+    env_mode = shell.run(f"stat -c %a {home}/rosdeploy/demo/current/.env").strip()
+    assert env_mode == "600"
+    made_by = {c["compose"].split(".")[0] for c in shell.containers().values()}
+    assert made_by == {compose[1]}, f"containers must be created by Compose {compose}, not {made_by}"
