@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Mapping
 
@@ -59,31 +60,48 @@ def broken(containers: tuple[Container, ...], expected: tuple[str, ...],
 
 def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = None) -> Verdict:
     """Poll until healthy, broken, or health.timeout. Not interruptible on purpose: once a
-    release was started, the gate decides whether it stays or is rolled back."""
+    release was started, the gate decides whether it stays or is rolled back.
+
+    The ROS probe starts as soon as the probe container runs, in parallel with waiting
+    for Docker health, so its discovery wait overlaps the health-check interval. It
+    runs at most twice per gate (a second time only if the first ran before the
+    services were healthy).
+    """
     policy = policy or spec.health
     expected = expected_services(spec)
     start = time.monotonic()
     deadline = start + policy.timeout
     baseline: dict[str, int] = {}
-    probes_left = 2
-    while True:
-        containers = read_containers(t, spec.project)
-        for c in containers:
-            baseline.setdefault(c.name, c.restarts)
-        failure = broken(containers, expected, baseline)
-        if failure:
-            return Verdict(False, failure[1], failure[0], containers=containers)
-        waiting = unhealthy_services(containers, expected)
-        if not waiting and time.monotonic() - start >= policy.stable:
-            verdict = _probe_graph(t, spec, containers, policy, deadline)
-            probes_left -= 1
-            if verdict.ok or probes_left == 0 or time.monotonic() + policy.interval >= deadline:
-                return verdict
-        elif time.monotonic() >= deadline:
-            service, why = next(iter(waiting.items()), ("", "not stable"))
-            return Verdict(False, f"{service}: {why} after {policy.timeout:g}s (health.timeout)",
-                           service or None, containers=containers)
-        time.sleep(policy.interval)
+    probe: Future[Verdict] | None = None
+    early = True   # the running probe started before every service was healthy
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ros-probe") as pool:
+        while True:
+            containers = read_containers(t, spec.project)
+            for c in containers:
+                baseline.setdefault(c.name, c.restarts)
+            failure = broken(containers, expected, baseline)
+            if failure:
+                return Verdict(False, failure[1], failure[0], containers=containers)
+            waiting = unhealthy_services(containers, expected)
+            if probe is None and _probe_can_start(spec, containers):
+                early = bool(waiting)
+                probe = pool.submit(_probe_graph, t, spec, containers, policy, deadline)
+            if not waiting and time.monotonic() - start >= policy.stable:
+                verdict = probe.result() if probe else _probe_graph(t, spec, containers, policy, deadline)
+                if verdict.ok or not early or time.monotonic() + policy.interval >= deadline:
+                    return replace(verdict, containers=containers)
+                probe, early = None, False   # probed too early: once more, now that all are healthy
+                continue
+            if time.monotonic() >= deadline:
+                service, why = next(iter(waiting.items()), ("", "not stable"))
+                return Verdict(False, f"{service}: {why} after {policy.timeout:g}s (health.timeout)",
+                               service or None, containers=containers)
+            time.sleep(policy.interval)
+
+
+def _probe_can_start(spec: FleetSpec, containers: tuple[Container, ...]) -> bool:
+    service = probe_service(spec)
+    return any(c.service == service and c.status == "running" for c in containers)
 
 
 def topics_spec(spec: FleetSpec) -> list[dict]:

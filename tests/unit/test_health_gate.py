@@ -1,0 +1,82 @@
+"""The health gate's decisions, driven by a scripted transport (the real one is in tests/integration)."""
+from __future__ import annotations
+
+import json
+import threading
+
+from rosdeploy.commands import Command
+from rosdeploy.health import wait_healthy
+from rosdeploy.model import FleetSpec, HealthPolicy, Service, Topic
+from rosdeploy.transport import Result
+
+SPEC = FleetSpec(path="f.yml", project="demo", inventory="i.yml", registry="r:5000", version="1.0.0",
+                 services=(Service("driver", "demo/driver", "1.0.0", topics=(Topic("/joint_states", 5.0),)),
+                           Service("perception", "demo/perception", "1.0.0")),
+                 health=HealthPolicy(timeout=1.0, stable=0.0, interval=0.01, topic_window=0.1))
+
+
+def c(service: str, status: str = "running", health: str | None = "healthy", restarts: int = 0) -> dict:
+    return {"name": f"/demo-{service}-1", "service": service, "image": "x", "status": status,
+            "health": health, "restarts": restarts}
+
+
+class Scripted:
+    """Answers `containers` with the next scripted poll (the last one repeats) and the probe with `probe`."""
+
+    def __init__(self, polls: list[list[dict]], probe: dict | None = None) -> None:
+        self.polls, self.probe, self.probes = polls, probe, 0
+        self.lock = threading.Lock()
+
+    def run(self, command: Command) -> Result:
+        with self.lock:
+            if command.label.startswith("ros-probe"):
+                self.probes += 1
+                report = self.probe or {"topics": {"/joint_states": {"present": True, "ok": True, "rate": 10}}}
+                ok = all(t["ok"] for t in report["topics"].values())
+                return Result("probe", json.dumps(report), "", 0 if ok else 1, 0.0)
+            poll = self.polls.pop(0) if len(self.polls) > 1 else self.polls[0]
+            return Result("containers", "\n".join(json.dumps(x) for x in poll), "", 0, 0.0)
+
+
+def test_healthy_after_starting_and_one_probe() -> None:
+    t = Scripted([[c("driver", health="starting"), c("perception", health="starting")],
+                  [c("driver"), c("perception", health="starting")],
+                  [c("driver"), c("perception")]])
+    verdict = wait_healthy(t, SPEC)
+    assert verdict.ok, verdict.reason
+    assert 1 <= t.probes <= 2
+
+
+def test_a_restart_fails_at_once_naming_the_service() -> None:
+    t = Scripted([[c("driver"), c("perception", health="starting")],
+                  [c("driver", restarts=1), c("perception", health="starting")]])
+    verdict = wait_healthy(t, SPEC)
+    assert not verdict.ok and verdict.service == "driver" and "restarted 1 time" in verdict.reason
+
+
+def test_unhealthy_fails_without_waiting_for_the_timeout() -> None:
+    t = Scripted([[c("driver"), c("perception", health="unhealthy")]])
+    verdict = wait_healthy(t, SPEC)
+    assert not verdict.ok and verdict.service == "perception" and "unhealthy" in verdict.reason
+
+
+def test_a_missing_topic_fails_the_gate_with_its_name() -> None:
+    report = {"topics": {"/joint_states": {"present": False, "ok": False, "min_rate": 5}}, "domain": "11"}
+    verdict = wait_healthy(Scripted([[c("driver"), c("perception")]], report), SPEC)
+    assert not verdict.ok and "/joint_states not on the ROS graph (domain 11)" in verdict.reason
+
+
+def test_a_slow_topic_fails_with_its_rate() -> None:
+    report = {"topics": {"/joint_states": {"present": True, "ok": False, "rate": 1.5, "min_rate": 5}}}
+    verdict = wait_healthy(Scripted([[c("driver"), c("perception")]], report), SPEC)
+    assert not verdict.ok and "1.5 Hz, below min_rate 5 Hz" in verdict.reason
+
+
+def test_never_healthy_times_out_naming_what_it_waited_for() -> None:
+    verdict = wait_healthy(Scripted([[c("driver"), c("perception", health="starting")]]), SPEC)
+    assert not verdict.ok and "perception: health starting" in verdict.reason and "health.timeout" in verdict.reason
+
+
+def test_a_missing_service_is_not_healthy() -> None:
+    verdict = wait_healthy(Scripted([[c("driver")]]), SPEC)
+    assert not verdict.ok and "perception: no container" in verdict.reason
