@@ -7,7 +7,7 @@ collected first and raised together as one FleetSpecError, so a user fixes the
 file in one pass instead of one error per run.
 
 The schema is data (one table per section, one small converter per value kind)
-so the key reference in docs/fleet-file.md and the code read the same.
+so the key reference in the README (The fleet file) and the code read the same.
 """
 from __future__ import annotations
 
@@ -483,7 +483,7 @@ def load_fleet(path: str | Path, *, inventory: str | None = None, version: str |
     r = Reader(doc)
     if not isinstance(doc.data, dict):
         raise FleetSpecError([doc.problem((), "the fleet file must be a mapping with at least project, "
-                                              "inventory, registry, version and services (see docs/fleet-file.md)")])
+                                              "inventory, registry, version and services (see the README (The fleet file))")])
     r.scan_control_chars(doc.data)
     required = ("project", "services") + (() if inventory else ("inventory",)) + (() if version else ("version",))
     top = _section(TOP, required=required)(r, (), doc.data)
