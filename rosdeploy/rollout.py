@@ -106,20 +106,23 @@ def apply_fleet(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Rend
     done: list[HostResult] = []
     aborted = False
     for number, wave in enumerate(waves, 1):
-        if ctx.cancel.is_set():
-            break
-        notify("wave", {"number": number, "of": len(waves), "hosts": [h.name for h in wave]})
-        results = parallel(wave, lambda h: apply_host(ctx, h, releases[h.name]), policy.forks, ctx.cancel.set)
-        done.extend(_with_wave(r, number) for r in results)
-        failed = [r for r in results if not r.ok and r.outcome != SKIPPED]
-        budget = allowed_failures(policy.max_fail, len(wave))
-        if len(failed) > budget:
-            aborted = True
-            notify("abort", {"wave": number, "failed": [r.host for r in failed], "max_fail": budget})
-            break
-        if policy.pause and number < len(waves) and not ctx.cancel.is_set():
-            notify("pause", {"seconds": policy.pause})
-            ctx.cancel.wait(policy.pause)
+        try:
+            if ctx.cancel.is_set():
+                break
+            notify("wave", {"number": number, "of": len(waves), "hosts": [h.name for h in wave]})
+            results = parallel(wave, lambda h: apply_host(ctx, h, releases[h.name]), policy.forks, ctx.cancel.set)
+            done.extend(_with_wave(r, number) for r in results)
+            failed = [r for r in results if not r.ok and r.outcome != SKIPPED]
+            budget = allowed_failures(policy.max_fail, len(wave))
+            if len(failed) > budget:
+                aborted = True
+                notify("abort", {"wave": number, "failed": [r.host for r in failed], "max_fail": budget})
+                break
+            if policy.pause and number < len(waves) and not ctx.cancel.is_set():
+                notify("pause", {"seconds": policy.pause})
+                ctx.cancel.wait(policy.pause)
+        except KeyboardInterrupt:   # between waves (pause, --step prompt): stop, then report
+            ctx.cancel.set()
     done.extend(_skipped(waves, done, "rollout stopped before this robot's wave"))
     back = _fleet_rollback(ctx, hosts, done, policy, notify) if aborted and ctx.spec.rollback.fleet else ()
     return FleetResult("apply", tuple(done), aborted=aborted, fleet_rollback=back,

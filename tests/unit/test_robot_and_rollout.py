@@ -99,3 +99,28 @@ def test_waves_follow_order_by_group() -> None:
     hosts = [host("n1", "site_north"), host("s1", "site_south"), host("n2", "site_north"), host("s2", "site_south")]
     waves = plan_waves(hosts, RolloutPolicy(waves=(1, "50%", "100%"), order_by="site_"))
     assert [[h.name for h in w] for w in waves] == [["n1"], ["n2"], ["s1", "s2"]]
+
+
+def test_interrupt_between_waves_skips_the_rest_and_reports(monkeypatch) -> None:
+    import threading
+
+    from rosdeploy import rollout
+    from rosdeploy.deploy import RunContext
+    from rosdeploy.model import FleetSpec, RenderedRelease, Service
+    from rosdeploy.results import DEPLOYED, HostResult
+
+    spec = FleetSpec(path="f", project="p", inventory="i", registry="r", version="1",
+                     services=(Service("s", "img", "1"),))
+    ctx = RunContext(spec=spec, ssh=None, run_id="run", operator="me", cancel=threading.Event())
+    monkeypatch.setattr(rollout, "apply_host", lambda ctx, h, rel: HostResult(h.name, DEPLOYED, "a", "b"))
+
+    def notify(event: str, data: dict) -> None:
+        if event == "wave" and data["number"] == 2:
+            raise KeyboardInterrupt
+
+    hosts = [host(f"r{i}") for i in range(4)]
+    releases = {h.name: RenderedRelease(h.name, "p", "1", (), ()) for h in hosts}
+    result = rollout.apply_fleet(ctx, hosts, releases, RolloutPolicy(waves=(1, "100%")), notify)
+    assert result.interrupted and not result.ok
+    assert [(h.host, h.outcome) for h in result.hosts] == [
+        ("r0", "deployed"), ("r1", "skipped"), ("r2", "skipped"), ("r3", "skipped")]
