@@ -1,0 +1,77 @@
+"""Rolling out across the simulated fleet: waves, failure budget, fleet-level rollback,
+unreachable robots. Each test asserts what the robots really run."""
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from rosdeploy import sim as simulator
+from rosdeploy.errors import EXIT_ABORTED, EXIT_OK, EXIT_PARTIAL
+from robots import RobotShell, all_healthy, rosdeploy, shells, versions, write_fleet, write_inventory
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.fixture
+def fleet_file(fleet, tmp_path: Path) -> Path:
+    return write_fleet(tmp_path, write_inventory(fleet, tmp_path))
+
+
+def apply(fleet_file: Path, *args: str):
+    return rosdeploy("--json", "apply", fleet_file, "--yes", *args)
+
+
+def test_failure_in_wave_two_returns_wave_one_to_the_old_release(fleet, fleet_file: Path) -> None:
+    assert apply(fleet_file).code == EXIT_OK
+    robots = shells(fleet)
+    old = {name: shell.current() for name, shell in robots.items()}
+    simulator.robot_exec("robot3", ["rm", "-f", "/dev/ttyUSB0"])     # robot3 will fail preflight
+
+    run = apply(fleet_file, "--version", "1.1.0", "--waves", "1,100%")
+    assert run.code == EXIT_ABORTED, run.stderr
+    outcomes = {h["host"]: (h["wave"], h["outcome"]) for h in run.doc["hosts"]}
+    assert outcomes == {"robot1": (1, "deployed"), "robot2": (2, "deployed"), "robot3": (2, "failed")}
+    back = {h["host"]: h["outcome"] for h in run.doc["fleet_rollback"]}
+    assert back == {"robot1": "switched", "robot2": "switched"}
+    for name, shell in robots.items():
+        assert shell.current() == old[name], f"{name} must be back on the release it ran before the rollout"
+        assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"}
+        assert all_healthy(shell)
+
+
+@pytest.fixture
+def robot2_down(fleet):
+    container = fleet.robot("robot2").container
+    subprocess.run(["docker", "stop", "-t", "1", container], check=True, capture_output=True)
+    yield
+    simulator.up(robots=len(fleet.robots), home=fleet.home)   # idempotent: starts robot2 again
+
+
+def test_unreachable_robot_is_reported_and_the_rest_succeed(fleet, fleet_file: Path, robot2_down) -> None:
+    run = apply(fleet_file, "--max-fail", "1")
+    assert run.code == EXIT_PARTIAL, run.stderr
+    assert run.host("robot2")["outcome"] == "unreachable"
+    assert "unreachable" in run.host("robot2")["reason"] and "127.0.0.1]:2202" in run.host("robot2")["reason"]
+    for name in ("robot1", "robot3"):
+        assert run.host(name)["outcome"] == "deployed"
+        shell = RobotShell(fleet, name)
+        assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"} and all_healthy(shell)
+
+
+def test_max_fail_one_tolerates_one_failure_and_not_two(fleet, fleet_file: Path) -> None:
+    simulator.robot_exec("robot1", ["rm", "-f", "/dev/ttyUSB0"])
+    one = apply(fleet_file, "--max-fail", "1")
+    assert one.code == EXIT_PARTIAL, "one failure within the budget: the rollout completes"
+    assert [h["outcome"] for h in one.doc["hosts"]] == ["failed", "deployed", "deployed"]
+    assert not one.doc["aborted"] and not one.doc["fleet_rollback"]
+
+    simulator.robot_exec("robot2", ["rm", "-f", "/dev/ttyUSB0"])
+    two = apply(fleet_file, "--max-fail", "1", "--version", "1.1.0")
+    assert two.code == EXIT_ABORTED, "two failures exceed max_fail=1: the rollout stops"
+    assert two.doc["aborted"]
+    assert two.host("robot3")["outcome"] == "deployed"
+    assert {h["host"]: h["outcome"] for h in two.doc["fleet_rollback"]} == {"robot3": "switched"}
+    shell = RobotShell(fleet, "robot3")
+    assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"} and all_healthy(shell)
