@@ -11,7 +11,7 @@ import traceback
 from typing import Sequence
 
 from rosdeploy import __version__
-from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, InputError, RosdeployError
+from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, InputError, RosdeployError
 from rosdeploy.output import Output
 
 
@@ -46,6 +46,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         out.error("interrupted")
         return EXIT_INTERRUPTED
+    except BrokenPipeError:   # `rosdeploy plan ... | head`: the reader left, nothing is wrong
+        sys.stderr.close()
+        return EXIT_OK
     except Exception:  # a bug: say so plainly, keep the traceback for the report
         if args.debug:
             traceback.print_exc()

@@ -113,7 +113,8 @@ def history(out: Output, rows: Sequence[tuple], limit: int) -> None:
                                  for h, ok, err, entries in rows]})
         return
     for host, ok, err, entries in rows:
-        out.line(out.paint(host, "bold") + ("" if ok else f": UNREACHABLE: {err}"))
+        out.line(out.paint(host, "bold") + ("" if ok else f": UNREACHABLE: {err}")
+                 + (": no deploys yet" if ok and not entries else ""))
         for e in entries[:limit]:
             detail = f" from {e['rolled_back_from']}" if e.get("rolled_back_from") else ""
             reason = f" ({e['reason']})" if e.get("reason") else ""
