@@ -22,7 +22,7 @@ from typing import Callable, Iterator
 
 from rosdeploy import __version__, commands
 from rosdeploy.errors import CommandFailed, ConnectError, RemoteError
-from rosdeploy.health import Verdict, expected_services, wait_healthy
+from rosdeploy.health import Verdict, diagnose, expected_services, wait_healthy
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
@@ -133,14 +133,15 @@ class RobotRun:
         except RemoteError:
             pass   # connection gone: the lock names this run, `--break-lock` clears it
 
-    def up(self, release: str, flavor: str) -> tuple[bool, str]:
+    def start(self, release: str, flavor: str) -> Verdict:
+        """`compose up` the release, then the health gate; a failed `up` is diagnosed the same way."""
         with self.step(f"start {release}"):
             out = self.t.run(commands.up(self.root, self.spec.project, release, flavor,
                                          timeout=self.spec.command_timeout))
-        return out.ok, (out.stdout + out.stderr).strip()
-
-    def gate(self) -> Verdict:
         with self.step("health"):
+            if not out.ok:
+                lines = (out.stdout + out.stderr).strip().splitlines()
+                return diagnose(self.t, self.spec, "compose up failed: " + (lines[-1] if lines else "no output"))
             return wait_healthy(self.t, self.spec)
 
     def history(self, entry: dict) -> None:
@@ -242,8 +243,7 @@ def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: di
                                     services), "upload")
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before switching", **base)
-    started, output = run.up(new, state.flavor or "v2")
-    verdict = run.gate() if started else Verdict(False, f"compose up failed: {output[-600:]}")
+    verdict = run.start(new, state.flavor or "v2")
     if verdict.ok:
         run.activate(new, {"event": "deploy", "release": new, "version": release.version,
                            "digest": release.digest, "from": old, "result": "active"})
@@ -266,8 +266,7 @@ def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict
             run.t.run(commands.down(run.root, run.spec.project, new, state.flavor or "v2"))
         return run.result(STOPPED, running_release=None,
                           reason=why + "; no previous release on the robot, so the failed one was stopped", **failed)
-    started, output = run.up(old, state.flavor or "v2")
-    back = run.gate() if started else Verdict(False, f"compose up failed: {output[-600:]}")
+    back = run.start(old, state.flavor or "v2")
     run.history({"event": "auto-rollback", "release": old, "rolled_back_from": new,
                  "result": "active" if back.ok else "unhealthy", "reason": verdict.reason})
     if back.ok:
@@ -340,8 +339,7 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     if holder is not None:
         return run.result(LOCKED, reason=f"locked by another run: {holder} (use --break-lock if it is stale)",
                           **base)
-    started, output = run.up(target, state.flavor)
-    verdict = run.gate() if started else Verdict(False, f"compose up failed: {output[-600:]}")
+    verdict = run.start(target, state.flavor)
     run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
                           "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback"})
     base["running_release"] = target

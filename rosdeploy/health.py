@@ -104,6 +104,19 @@ def _probe_can_start(spec: FleetSpec, containers: tuple[Container, ...]) -> bool
     return any(c.service == service and c.status == "running" for c in containers)
 
 
+def diagnose(t: Transport, spec: FleetSpec, reason: str) -> Verdict:
+    """`compose up` itself failed (e.g. a dependency never became healthy): find which
+    service is to blame, so the report and the logs name it."""
+    containers = read_containers(t, spec.project)
+    expected = expected_services(spec)
+    failure = broken(containers, expected, {c.name: c.restarts for c in containers})
+    if failure is None:
+        failure = next(iter(unhealthy_services(containers, expected).items()), None)
+    service, why = failure if failure else (None, "")
+    detail = f"{reason}; {service}: {why}" if service else reason
+    return Verdict(False, detail, service, containers=containers)
+
+
 def topics_spec(spec: FleetSpec) -> list[dict]:
     return [{"name": t.name, "min_rate": t.min_rate} for s in spec.services if not s.profiles for t in s.topics]
 

@@ -109,6 +109,8 @@ def test_registry_down_fails_the_pull_and_changes_nothing(fleet, fleet_file: Pat
     assert deploy(fleet_file, "--limit", "robot1").code == EXIT_OK
     shell = RobotShell(fleet, "robot1")
     before = shell.containers()
+    for node in ("driver", "perception"):   # a robot keeps pulled images: make 1.1.0 need a pull
+        simulator.robot_exec("robot1", ["docker", "image", "rm", "-f", f"registry.local:5000/demo/{node}:1.1.0"])
     simulator.stop_registry()
     try:
         run = deploy(fleet_file, "--limit", "robot1", "--version", "1.1.0")
