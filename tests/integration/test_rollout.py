@@ -62,13 +62,13 @@ def test_unreachable_robot_is_reported_and_the_rest_succeed(fleet, fleet_file: P
 
 def test_max_fail_one_tolerates_one_failure_and_not_two(fleet, fleet_file: Path) -> None:
     simulator.robot_exec("robot1", ["rm", "-f", "/dev/ttyUSB0"])
-    one = apply(fleet_file, "--max-fail", "1")
+    one = apply(fleet_file, "--max-fail", "1", "--waves", "100%")   # max_fail counts per wave
     assert one.code == EXIT_PARTIAL, "one failure within the budget: the rollout completes"
     assert [h["outcome"] for h in one.doc["hosts"]] == ["failed", "deployed", "deployed"]
     assert not one.doc["aborted"] and not one.doc["fleet_rollback"]
 
     simulator.robot_exec("robot2", ["rm", "-f", "/dev/ttyUSB0"])
-    two = apply(fleet_file, "--max-fail", "1", "--version", "1.1.0")
+    two = apply(fleet_file, "--max-fail", "1", "--waves", "100%", "--version", "1.1.0")
     assert two.code == EXIT_ABORTED, "two failures exceed max_fail=1: the rollout stops"
     assert two.doc["aborted"]
     assert two.host("robot3")["outcome"] == "deployed"
