@@ -128,7 +128,8 @@ def test_missing_device_fails_preflight_and_keeps_running(fleet, fleet_file: Pat
     before = shell.containers()
     simulator.robot_exec("robot3", ["rm", "-f", "/dev/ttyUSB0"])
     run = deploy(fleet_file, "--limit", "robot3", "--version", "1.1.0")
-    assert run.code == EXIT_PARTIAL
+    assert run.code == EXIT_ABORTED, "one failure exceeds max_fail=0"
+    assert run.host("robot3")["outcome"] == "failed"
     reason = run.host("robot3")["reason"]
     assert "preflight" in reason and "/dev/robot/motor" in reason and "devices.motor" in reason
     assert shell.containers() == before, "the running release keeps running"
