@@ -46,7 +46,8 @@ _CONTROL = {"\n": "a newline", "\r": "a carriage return", "\0": "a NUL byte"}
 
 # rosdeploy sets these per robot (checklist item 8): a fleet file must not hard-code them.
 RESERVED_ENV = frozenset({"ROS_DOMAIN_ID", "RMW_IMPLEMENTATION", "CYCLONEDDS_URI",
-                          "FASTRTPS_DEFAULT_PROFILES_FILE", "NVIDIA_VISIBLE_DEVICES"})
+                          "FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
+                          "NVIDIA_VISIBLE_DEVICES"})
 # compose keys rosdeploy renders from fleet keys; `compose:` may not override them.
 MANAGED_COMPOSE = {"image": "image/tag", "command": "command", "environment": "environment",
                    "env_file": "environment", "devices": "devices", "restart": "restart",

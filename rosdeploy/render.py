@@ -36,10 +36,13 @@ ENV_FILE = ".env"
 UDEV_FILE = "99-rosdeploy.rules"
 LOGROTATE_FILE = "logrotate.conf"
 
-# rmw key in the fleet file -> (RMW_IMPLEMENTATION, DDS profile file, env var pointing at it, its value)
+# rmw key in the fleet file -> (RMW_IMPLEMENTATION, DDS profile file, env vars pointing at it).
+# Fast DDS 2.x (Humble, Jazzy) reads FASTRTPS_DEFAULT_PROFILES_FILE; 3.x reads
+# FASTDDS_DEFAULT_PROFILES_FILE and warns on the old name: set both, one image may be either.
 RMW = {
-    "fastdds": ("rmw_fastrtps_cpp", "fastdds.xml", "FASTRTPS_DEFAULT_PROFILES_FILE", "/fastdds.xml"),
-    "cyclonedds": ("rmw_cyclonedds_cpp", "cyclonedds.xml", "CYCLONEDDS_URI", "file:///cyclonedds.xml"),
+    "fastdds": ("rmw_fastrtps_cpp", "fastdds.xml",
+                {"FASTDDS_DEFAULT_PROFILES_FILE": "/fastdds.xml", "FASTRTPS_DEFAULT_PROFILES_FILE": "/fastdds.xml"}),
+    "cyclonedds": ("rmw_cyclonedds_cpp", "cyclonedds.xml", {"CYCLONEDDS_URI": "file:///cyclonedds.xml"}),
 }
 
 # Keys the built-in compose template writes for a service; `extra` may not repeat
@@ -279,8 +282,7 @@ class Renderer:
         if spec.network_mode not in ("host", "bridge"):
             raise RenderError([self._problem(("ros", "network_mode"),
                                              f"unknown network_mode {spec.network_mode!r} (use host or bridge)")])
-        self.rmw_implementation, self.dds_file, dds_env, dds_value = RMW[spec.rmw]
-        self.dds_env = {dds_env: dds_value}
+        self.rmw_implementation, self.dds_file, self.dds_env = RMW[spec.rmw]
         self.override = self._override_dir()
         self.env = self._environment()
         outputs = {COMPOSE_FILE: "compose.yml.j2", ENV_FILE: "env.j2", self.dds_file: f"{self.dds_file}.j2",

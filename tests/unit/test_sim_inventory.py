@@ -36,7 +36,9 @@ def test_inventory_is_the_ansible_layout_the_issue_asks_for(tmp_path: Path) -> N
     assert data == inventory_data(robots, paths.key_file, paths.known_hosts)
     assert data["all"]["vars"] == {"ansible_user": "robot",
                                    "ansible_ssh_private_key_file": str(tmp_path / "id_ed25519"),
-                                   "rosdeploy_known_hosts": str(tmp_path / "known_hosts")}
+                                   "rosdeploy_known_hosts": str(tmp_path / "known_hosts"),
+                                   "udev": [{"symlink": "robot/motor", "subsystem": "tty", "vendor": "0403",
+                                             "product": "6001", "group": "dialout"}]}
     assert data["all"]["children"]["sim"]["hosts"] == {
         "robot1": {"ansible_host": "127.0.0.1", "ansible_port": 2201, "ros_domain_id": 11,
                    "devices": {"motor": "/dev/robot/motor"}},
