@@ -16,7 +16,6 @@ import select
 import socket
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Protocol
 
 import paramiko
@@ -188,6 +187,3 @@ def local_user_at_host() -> str:
     user = os.environ.get("USER") or os.environ.get("LOGNAME") or str(os.getuid())
     return f"{user}@{socket.gethostname()}"
 
-
-def expand(path: str | None) -> str | None:
-    return str(Path(path).expanduser()) if path else None
