@@ -29,7 +29,9 @@ from rosdeploy.fleet import size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
 from rosdeploy.yamlsrc import Doc
 
-TEMPLATE_DIR = Path(__file__).resolve().parent.parent / "templates"
+# rosdeploy/templates is a link to the repo's top-level templates/ in a checkout, and a real
+# directory in an installed wheel (setuptools copies what the link points at).
+TEMPLATE_DIR = Path(__file__).parent / "templates"
 
 COMPOSE_FILE = "compose.yml"
 ENV_FILE = ".env"
