@@ -30,8 +30,12 @@ node = rclpy.create_node("sim_test_probe")
 got = []
 node.create_subscription(String, "/detections", lambda m: got.append(m.data), 10)
 deadline = time.monotonic() + 20
-# Until perception says it has received the driver's samples (or time runs out).
-while time.monotonic() < deadline and not (got and "received: 0)" not in got[-1]):
+# Until perception says it has received the driver's samples AND this node has itself
+# discovered the driver's publisher (each participant is discovered on its own: seeing
+# perception's data says nothing about when the driver's endpoint shows up here).
+def done():
+    return got and "received: 0)" not in got[-1] and node.count_publishers("/joint_states") >= 1
+while time.monotonic() < deadline and not done():
     rclpy.spin_once(node, timeout_sec=0.2)
 topics = dict(node.get_topic_names_and_types())
 print(json.dumps({"topics": {k: v for k, v in topics.items()}, "detections": got[-1:],
