@@ -1,0 +1,293 @@
+"""Medians, the side-by-side table, the targets, the JSON record and the docs section."""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import re
+import statistics
+from collections import defaultdict
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+from fleetbench.scenarios import SCENARIOS, TITLES, Measure
+
+BEGIN, END = "<!-- fleet_bench:begin -->", "<!-- fleet_bench:end -->"
+
+
+@dataclass(frozen=True)
+class Goal:
+    name: str
+    text: str
+    value: float | None     # what was measured (speedup, or seconds for status)
+    threshold: float
+    higher_is_better: bool
+
+    @property
+    def met(self) -> bool | None:
+        if self.value is None:
+            return None
+        return self.value >= self.threshold if self.higher_is_better else self.value < self.threshold
+
+
+def median(values: Iterable[float]) -> float | None:
+    values = list(values)
+    return statistics.median(values) if values else None
+
+
+def speedup(ours: float | None, theirs: float | None) -> float | None:
+    return theirs / ours if ours and theirs else None
+
+
+# ------------------------------------------------------------- step profile
+
+def step_names(steps: Sequence[Mapping[str, Any]]) -> list[tuple[str, float]]:
+    """("start", s), ("health", s), ("start#2", s)...: a release id is dropped, repeats are numbered."""
+    seen: dict[str, int] = defaultdict(int)
+    named = []
+    for step in steps:
+        base = step["name"].split(" ", 1)[0]
+        seen[base] += 1
+        named.append((base if seen[base] == 1 else f"{base}#{seen[base]}", float(step["seconds"])))
+    return named
+
+
+def step_medians(measures: Sequence[Measure]) -> dict[str, float]:
+    """Per step: the median over every robot of every round (robots that ran the step)."""
+    by_step: dict[str, list[float]] = defaultdict(list)
+    order: list[str] = []
+    for measure in measures:
+        for host in measure.steps:
+            for name, seconds in step_names(host["steps"]):
+                by_step[name].append(seconds)
+                if name not in order:
+                    order.append(name)
+    return {name: round(statistics.median(by_step[name]), 3) for name in order}
+
+
+def overhead(measures: Sequence[Measure]) -> float | None:
+    """Wall time outside the rollout itself: interpreter, imports, load, render, run log."""
+    return median(m.seconds - m.wall_inside for m in measures if m.wall_inside is not None)
+
+
+# ----------------------------------------------------------------- results
+
+def fleet_section(rounds: Mapping[str, Sequence[Mapping[str, Measure]]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for scenario in SCENARIOS:
+        ours = [r[scenario] for r in rounds.get("rosdeploy", ())]
+        theirs = [r[scenario] for r in rounds.get("ansible", ())]
+        entry = {"title": TITLES[scenario],
+                 "rosdeploy": [round(m.seconds, 3) for m in ours], "ansible": [round(m.seconds, 3) for m in theirs],
+                 "rosdeploy_median": _r(median(m.seconds for m in ours)),
+                 "ansible_median": _r(median(m.seconds for m in theirs))}
+        entry["speedup"] = _r(speedup(entry["rosdeploy_median"], entry["ansible_median"]), 2)
+        entry["rosdeploy_steps"] = step_medians(ours)
+        entry["rosdeploy_overhead"] = _r(overhead(ours))
+        out[scenario] = entry
+    return out
+
+
+def fanout_section(raw: Mapping[str, Mapping[int, Sequence[Any]]]) -> dict[str, Any]:
+    """Per command and N: wall seconds of each run, the median, and the median controller
+    CPU (what stays on the operator's machine when every target has CPUs of its own)."""
+    sizes = sorted({n for series in raw.values() for n in series})
+    out: dict[str, Any] = {"sizes": sizes}
+    for name, series in raw.items():
+        out[name] = {str(n): {"runs": [round(t.seconds, 3) for t in series[n]],
+                              "median": _r(median(t.seconds for t in series[n])),
+                              "cpu_median": _r(median(t.cpu for t in series[n]))}
+                     for n in sizes if n in series}
+    return out
+
+
+def goals(fleet: Mapping[str, Any], fanout: Mapping[str, Any]) -> list[Goal]:
+    status = fanout.get("status", {})
+    largest = max((int(n) for n in status), default=None)
+    status_value = status[str(largest)]["median"] if largest else None
+    return [
+        Goal("noop", "no-op apply ≥ 10× faster than Ansible", fleet.get("noop", {}).get("speedup"), 10, True),
+        Goal("upgrade", "upgrade ≤ ½ of Ansible's time (≥ 2×)", fleet.get("upgrade", {}).get("speedup"), 2, True),
+        Goal("rollback", "emergency rollback ≤ ¼ of Ansible's redeploy (≥ 4×)",
+             fleet.get("rollback", {}).get("speedup"), 4, True),
+        Goal("status", f"status over {largest or 100} targets < 2 s", status_value, 2.0, False),
+    ]
+
+
+def machine() -> dict[str, Any]:
+    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                if line.startswith("model name")), platform.processor() or "unknown")
+    mem_kb = next(int(line.split()[1]) for line in Path("/proc/meminfo").read_text().splitlines()
+                  if line.startswith("MemTotal"))
+    return {"nproc": os.cpu_count(), "memory_gib": round(mem_kb / 1024 / 1024, 1), "cpu": cpu,
+            "os": _os_name(), "python": platform.python_version()}
+
+
+def _os_name() -> str:
+    try:
+        text = Path("/etc/os-release").read_text()
+    except OSError:
+        return platform.platform()
+    match = re.search(r'^PRETTY_NAME="?([^"\n]+)"?', text, re.M)
+    return match.group(1) if match else platform.platform()
+
+
+def now_utc() -> str:
+    return datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+
+
+def _r(value: float | None, digits: int = 3) -> float | None:
+    return round(value, digits) if value is not None else None
+
+
+# ------------------------------------------------------------------- table
+
+def table_rows(results: Mapping[str, Any]) -> list[tuple[str, str, str, str]]:
+    rows = []
+    robots = results["config"]["robots"]
+    for scenario, entry in results.get("fleet", {}).items():
+        rows.append((f"{entry['title']} ({robots} robots)", _s(entry["rosdeploy_median"]),
+                     _s(entry["ansible_median"]), _x(entry["speedup"])))
+    fan = results.get("fanout", {})
+    for n in fan.get("sizes", []):
+        status = _get(fan, "status", n)
+        ours, theirs = _get(fan, "rosdeploy_noop", n), _get(fan, "ansible_noop", n)
+        rows.append((f"fan-out: status, {n} targets", _s(status.get("median")), "—", ""))
+        rows.append((f"fan-out: no-op apply, {n} targets", _s(ours.get("median")), _s(theirs.get("median")),
+                     _x(speedup(ours.get("median"), theirs.get("median")))))
+    return rows
+
+
+def _get(fan: Mapping[str, Any], name: str, n: int) -> Mapping[str, Any]:
+    return fan.get(name, {}).get(str(n), {})
+
+
+def fanout_cpu_rows(results: Mapping[str, Any]) -> list[tuple[str, ...]]:
+    fan = results.get("fanout", {})
+    return [(str(n), *(_s(_get(fan, name, n).get("cpu_median")) for name in ("status", "rosdeploy_noop", "ansible_noop")))
+            for n in fan.get("sizes", [])]
+
+
+CPU_HEADER = ("targets", "rosdeploy status", "rosdeploy no-op", "Ansible no-op")
+
+
+def _s(value: float | None) -> str:
+    return f"{value:.2f} s" if value is not None else "—"
+
+
+def _x(value: float | None) -> str:
+    return f"{value:.1f}×" if value is not None else "—"
+
+
+def text_table(rows: Sequence[tuple[str, ...]], header: Sequence[str]) -> str:
+    widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
+    lines = ["  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(r, widths)))
+             for r in [header, *rows]]
+    return "\n".join([lines[0], "-" * len(lines[0]), *lines[1:]])
+
+
+def markdown_table(rows: Sequence[tuple[str, ...]], header: Sequence[str]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+HEADER = ("scenario", "rosdeploy (median)", "Ansible (median)", "speedup")
+
+
+def goal_lines(results: Mapping[str, Any]) -> list[str]:
+    out = []
+    for g in results["goals"]:
+        verdict = {True: "MET", False: "MISSED", None: "not measured"}[g["met"]]
+        value = "—" if g["value"] is None else (f"{g['value']:.2f} s" if g["name"] == "status"
+                                                else f"{g['value']:.1f}×")
+        out.append(f"{g['text']}: {value} → {verdict}")
+    return out
+
+
+def steps_table(results: Mapping[str, Any]) -> str:
+    fleet = results.get("fleet", {})
+    names: list[str] = []
+    for entry in fleet.values():
+        names += [n for n in entry["rosdeploy_steps"] if n not in names]
+    rows = [(TITLES[s], _s(e["rosdeploy_overhead"]),
+             *(f"{e['rosdeploy_steps'][n]:.2f}" if n in e["rosdeploy_steps"] else "" for n in names))
+            for s, e in fleet.items()]
+    return markdown_table(rows, ("scenario", "process + load + render", *names))
+
+
+# ------------------------------------------------------------------ output
+
+def carry_over(results: dict[str, Any], folder: Path) -> None:
+    """A run that skipped a part (--skip-fleet, --fanout "") keeps that part from the newest
+    saved run, labelled with that run's date and command, so the page stays whole."""
+    saved = sorted(folder.glob("fleet-*.json"))
+    if not saved:
+        return
+    previous = json.loads(saved[-1].read_text())
+    for part in ("fleet", "fanout"):
+        if not results.get(part) and previous.get(part):
+            results[part] = previous[part]
+            origin = (previous.get("carried_over") or {}).get(part) or {"date": previous["date"],
+                                                                      "command": previous["command"]}
+            results.setdefault("carried_over", {})[part] = origin
+
+
+def save_json(results: Mapping[str, Any], folder: Path) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"fleet-{results['date'][:10]}.json"
+    path.write_text(json.dumps(results, indent=1, sort_keys=False) + "\n")
+    return path
+
+
+def docs_block(results: Mapping[str, Any], json_path: str) -> str:
+    m = results["machine"]
+    v = results["versions"]
+    parts = [
+        BEGIN,
+        f"### Latest run: {results['date']}",
+        "",
+        f"- Command: `{results['command']}`",
+        f"- Machine: {m['nproc']} cores ({m['cpu']}), {m['memory_gib']} GiB RAM, {m['os']}, Python {m['python']}",
+        f"- Versions: rosdeploy {v['rosdeploy']}, ansible-core {v['ansible']}, Docker {v['docker']}, "
+        f"Compose {v['compose']}",
+        f"- Load average (1, 5, 15 min) at start {results['load_average']['start']}, "
+        f"at end {results['load_average']['end']}",
+        f"- Raw numbers: `{json_path}` (runs per scenario: {results['config']['runs']}; "
+        f"Ansible fan-out runs per N: {results['config'].get('ansible_fanout_runs', 1)}; medians below)",
+        *(f"- The {part} part is from the run of {origin['date']} (`{origin['command']}`)"
+          for part, origin in (results.get("carried_over") or {}).items()),
+        "",
+        markdown_table(table_rows(results), HEADER),
+        "",
+        "Targets (each ratio compares the two tools within one run):",
+        "",
+        *(f"- {line}" for line in goal_lines(results)),
+        "",
+    ]
+    if results.get("fanout"):
+        parts += ["Fan-out, controller CPU (median user+sys seconds of the command and its children: what "
+                  "stays on the operator's machine when every target has its own CPUs):", "",
+                  markdown_table(fanout_cpu_rows(results), CPU_HEADER), ""]
+    if results.get("fleet"):
+        parts += ["Where rosdeploy's time goes (median seconds per robot, from `--json` step timings):", "",
+                  steps_table(results), ""]
+    if results.get("fanout_error"):
+        parts += [f"The fan-out part stopped early: {results['fanout_error'].splitlines()[0]}", ""]
+    if results.get("discarded_rounds"):
+        parts += [f"{len(results['discarded_rounds'])} round(s) failed their result check and were run again "
+                  "(see `discarded_rounds` in the JSON).", ""]
+    parts.append(END)
+    return "\n".join(parts)
+
+
+def write_docs(path: Path, block: str) -> None:
+    text = path.read_text() if path.exists() else "# Benchmarks\n\n"
+    if BEGIN in text and END in text:
+        head, rest = text.split(BEGIN, 1)
+        text = head + block + rest.split(END, 1)[1]
+    else:
+        text = text.rstrip("\n") + "\n\n" + block + "\n"
+    path.write_text(text)

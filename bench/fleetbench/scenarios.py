@@ -1,0 +1,195 @@
+"""The fleet scenarios, each run once per tool per round on the simulated robots.
+
+One round for one tool, starting from clean robots:
+  first deploy 1.0.0 -> no-op re-apply -> upgrade to 1.1.0 -> 1.2.0-bad (until the
+  robots are back on 1.1.0 and healthy) -> emergency rollback of the whole fleet
+  (rosdeploy `rollback`; Ansible redeploys the old version, 1.0.0).
+Every measured command must end as the scenario expects, and what the robots run
+afterwards is checked from their own Docker engines (not from either tool's output).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+from fleetbench import ansible as ans
+from fleetbench.proc import BenchError, check, expect, rosdeploy_argv, timed
+
+FIRST, UPGRADE, BAD = "1.0.0", "1.1.0", "1.2.0-bad"
+SCENARIOS = ("first_deploy", "noop", "upgrade", "bad_release", "rollback")
+TITLES = {
+    "first_deploy": "first deploy 1.0.0, clean robots",
+    "noop": "no-op re-apply",
+    "upgrade": "upgrade 1.0.0 → 1.1.0",
+    "bad_release": "1.2.0-bad → rolled back, healthy",
+    "rollback": "emergency rollback, whole fleet",
+}
+KEEPER = "fleet-bench/layers:keep"
+# Keep the demo images' layers on a robot under a local tag, then drop every demo
+# tag: each round's pulls then fetch manifests (and any layer a tag adds), the same
+# in every round, instead of 120 MB in round 1 and nothing after.
+UNTAG_SCRIPT = r'''
+reg=$1
+docker image inspect "$2" >/dev/null 2>&1 || { docker pull -q "$reg/demo/driver:1.0.0" >/dev/null && docker tag "$reg/demo/driver:1.0.0" "$2"; }
+tags=$(docker images --format '{{.Repository}}:{{.Tag}}' | grep "^$reg/demo/" || true)
+[ -z "$tags" ] || docker rmi $tags >/dev/null
+'''
+
+
+@dataclass(frozen=True)
+class SimBench:
+    fleet: Path                     # the demo fleet file, used as it is
+    inventory: Path                 # the sim's inventory
+    robots: tuple[str, ...]
+    project: str
+    services: tuple[str, ...]       # what `up` starts (services without profiles)
+    registry_robot: str
+    runner: ans.Ansible
+    extra: Mapping[str, Any]        # Ansible extra vars shared by every play
+    env: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def limit(self) -> str:
+        return ":".join(self.robots)
+
+
+@dataclass(frozen=True)
+class Measure:
+    seconds: float
+    steps: tuple[dict, ...] = ()    # rosdeploy --json: per host {host, outcome, seconds, steps}
+    wall_inside: float | None = None   # rosdeploy's own FleetResult.seconds
+
+
+# ------------------------------------------------------------- robot state
+
+def robot_services(robot: str, project: str) -> dict[str, dict]:
+    """service -> {tag, status, health, id} from the robot's own engine (docker exec, as root)."""
+    from rosdeploy import sim
+
+    fmt = ('{"service":{{json (index .Config.Labels "com.docker.compose.service")}},"image":{{json .Config.Image}},'
+           '"status":{{json .State.Status}},"id":{{json .Id}},'
+           '"health":{{if .State.Health}}{{json .State.Health.Status}}{{else}}null{{end}}}')
+    ids = sim.robot_exec(robot, ["docker", "ps", "-aq", "--filter",
+                                 f"label=com.docker.compose.project={project}"]).stdout.split()
+    if not ids:
+        return {}
+    out = sim.robot_exec(robot, ["docker", "inspect", "--format", fmt, *ids]).stdout
+    rows = [json.loads(line) for line in out.splitlines() if line.strip()]
+    return {r["service"]: {**r, "tag": r["image"].rsplit(":", 1)[-1]} for r in rows}
+
+
+def verify(bench: SimBench, version: str, what: str) -> dict[str, dict]:
+    """Every robot runs exactly the release's services, all at `version`, running and healthy."""
+    seen = {robot: robot_services(robot, bench.project) for robot in bench.robots}
+    for robot, services in seen.items():
+        wrong = {s: (c["tag"], c["status"], c["health"]) for s, c in services.items()
+                 if (c["tag"], c["status"], c["health"] or "healthy") != (version, "running", "healthy")}
+        if set(services) != set(bench.services) or wrong:
+            raise BenchError(f"{what}: {robot} should run {version}, healthy; it runs "
+                             f"{ {s: (c['tag'], c['status'], c['health']) for s, c in services.items()} }")
+    return seen
+
+
+def same_containers(before: Mapping[str, dict], after: Mapping[str, dict], what: str) -> None:
+    ids = {r: {s: c["id"] for s, c in svc.items()} for r, svc in before.items()}
+    if ids != {r: {s: c["id"] for s, c in svc.items()} for r, svc in after.items()}:
+        raise BenchError(f"{what}: containers were recreated by a no-op")
+
+
+def reset(bench: SimBench) -> None:
+    """Clean robots: no compose project, no deploy root, no demo tags (layers kept)."""
+    from rosdeploy import sim
+
+    sim.reset()
+    for robot in bench.robots:
+        result = sim.robot_exec(robot, ["sh", "-c", UNTAG_SCRIPT, "untag", bench.registry_robot, KEEPER],
+                                timeout=600)
+        if result.returncode != 0:
+            raise BenchError(f"{robot}: removing the demo tags failed: {result.stderr.strip()[-400:]}")
+
+
+# --------------------------------------------------------------- rosdeploy
+
+def rosdeploy(bench: SimBench, *args: str, codes: Sequence[int], what: str) -> Measure:
+    result = expect(timed(rosdeploy_argv("--json", *args, str(bench.fleet), "-i", str(bench.inventory),
+                                         "--limit", bench.limit, "--yes"), env=bench.env), codes, what)
+    doc = json.loads(result.stdout)
+    hosts = [*doc["hosts"], *doc.get("fleet_rollback", [])]
+    steps = tuple({"host": h["host"], "outcome": h["outcome"], "seconds": h["seconds"], "steps": h["steps"]}
+                  for h in hosts)
+    return Measure(result.seconds, steps, doc.get("seconds"))
+
+
+def outcomes(measure: Measure) -> set[str]:
+    return {h["outcome"] for h in measure.steps}
+
+
+def rosdeploy_round(bench: SimBench) -> dict[str, Measure]:
+    reset(bench)
+    got: dict[str, Measure] = {}
+    got["first_deploy"] = rosdeploy(bench, "apply", "--version", FIRST, codes=[0], what="rosdeploy first deploy")
+    before = verify(bench, FIRST, "rosdeploy first deploy")
+    got["noop"] = rosdeploy(bench, "apply", "--version", FIRST, codes=[0], what="rosdeploy no-op")
+    if outcomes(got["noop"]) != {"unchanged"}:
+        raise BenchError(f"rosdeploy no-op re-apply did something: {outcomes(got['noop'])}")
+    same_containers(before, verify(bench, FIRST, "rosdeploy no-op"), "rosdeploy no-op")
+    got["upgrade"] = rosdeploy(bench, "apply", "--version", UPGRADE, codes=[0], what="rosdeploy upgrade")
+    verify(bench, UPGRADE, "rosdeploy upgrade")
+    got["bad_release"] = rosdeploy(bench, "apply", "--version", BAD, codes=[3, 4], what="rosdeploy bad release")
+    verify(bench, UPGRADE, "rosdeploy bad release (must be back on 1.1.0)")
+    got["rollback"] = rosdeploy(bench, "rollback", codes=[0], what="rosdeploy rollback")
+    verify(bench, FIRST, "rosdeploy emergency rollback")
+    return got
+
+
+# ----------------------------------------------------------------- Ansible
+
+def policy_vars(fleet: Mapping[str, Any]) -> dict[str, Any]:
+    """The fleet file's waves and max_fail, as Ansible's serial and max_fail_percentage."""
+    rollout = fleet.get("rollout") or {}
+    waves = [str(w) if isinstance(w, str) else int(w) for w in rollout.get("waves", ["100%"])]
+    max_fail = rollout.get("max_fail", 0)
+    if isinstance(max_fail, str) and max_fail.endswith("%"):
+        percent = float(max_fail[:-1])
+    elif int(max_fail) == 0:
+        percent = 0.0
+    else:
+        raise BenchError(f"rollout.max_fail {max_fail!r}: only 0 or N% map onto Ansible's max_fail_percentage")
+    return {"waves": waves, "max_fail_percentage": percent}
+
+
+def play(bench: SimBench, version: str, codes: Sequence[int], what: str, **extra: Any) -> Measure:
+    result = ans.require(bench.runner.play({**bench.extra, "version": version, **extra},
+                                           forks=max(len(bench.robots), 5), limit=bench.limit), codes, what)
+    return Measure(result.seconds)
+
+
+def ansible_round(bench: SimBench) -> dict[str, Measure]:
+    reset(bench)
+    got: dict[str, Measure] = {}
+    got["first_deploy"] = play(bench, FIRST, [0], "Ansible first deploy")
+    before = verify(bench, FIRST, "Ansible first deploy")
+    got["noop"] = play(bench, FIRST, [0], "Ansible no-op")
+    same_containers(before, verify(bench, FIRST, "Ansible no-op"), "Ansible no-op")
+    got["upgrade"] = play(bench, UPGRADE, [0], "Ansible upgrade")
+    verify(bench, UPGRADE, "Ansible upgrade")
+    got["bad_release"] = play(bench, BAD, [2], "Ansible bad release")
+    verify(bench, UPGRADE, "Ansible bad release (must be back on 1.1.0)")
+    # An emergency: every robot at once, like `rosdeploy rollback` (no canary wave).
+    got["rollback"] = play(bench, FIRST, [0], "Ansible redeploy of the old version", waves=["100%"])
+    verify(bench, FIRST, "Ansible redeploy of the old version")
+    return got
+
+
+def render_versions(fleet: Path, inventory: Path, out: Path, versions: Sequence[str]) -> Path:
+    """`rosdeploy render` per version: the exact files both tools deploy."""
+    for version in versions:
+        check(rosdeploy_argv("render", str(fleet), "-i", str(inventory), "--version", version,
+                             "--out", str(out / version)), what=f"rosdeploy render --version {version}")
+    return out
+
+
+Round = Callable[[SimBench], dict[str, Measure]]
+TOOLS: dict[str, Round] = {"rosdeploy": rosdeploy_round, "ansible": ansible_round}
