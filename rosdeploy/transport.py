@@ -6,8 +6,8 @@ gateways, agent and key handling) and drives the paramiko channel itself for
 exec, because a deploy is dozens of short commands per robot and hundreds of
 robots at once: one connection per robot, no reader threads per command.
 
-Host keys are always verified: fabric installs AutoAddPolicy by default, we
-replace it with RejectPolicy before connecting.
+Host keys are always verified: fabric's default policy would add unknown keys;
+we replace it with RejectPolicy before connecting.
 """
 from __future__ import annotations
 

@@ -68,3 +68,10 @@ def ssh(fleet: SimFleet) -> Iterator[Callable[..., paramiko.SSHClient]]:
     yield open_client
     for client in clients:
         client.close()
+
+
+@pytest.fixture
+def fleet_file(fleet: SimFleet, tmp_path: Path) -> Path:
+    """playbooks/demo.yml on a clean fleet, through a copy of the sim's inventory."""
+    from robots import write_fleet, write_inventory
+    return write_fleet(tmp_path, write_inventory(fleet, tmp_path))

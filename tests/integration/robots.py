@@ -39,6 +39,11 @@ def rosdeploy(*args: str) -> CliRun:
     return CliRun(code, out.getvalue(), err.getvalue())
 
 
+def apply(fleet_file: Path, *args: str) -> CliRun:
+    """`rosdeploy --json apply FLEET --yes ...`"""
+    return rosdeploy("--json", "apply", fleet_file, "--yes", *args)
+
+
 def write_inventory(sim, tmp_path: Path, **overrides: Any) -> Path:
     """The sim's inventory, with vars overridden for every robot (e.g. ansible_user=root)."""
     data = yaml.safe_load(Path(sim.inventory).read_text())

@@ -12,17 +12,11 @@ import pytest
 from rosdeploy import sim as simulator
 from rosdeploy.errors import EXIT_ABORTED, EXIT_OK, EXIT_PARTIAL
 from robots import RobotShell, all_healthy, rosdeploy, shells, versions, write_fleet, write_inventory
+from robots import apply as deploy
 
 pytestmark = pytest.mark.integration
 
 
-@pytest.fixture
-def fleet_file(fleet, tmp_path: Path) -> Path:
-    return write_fleet(tmp_path, write_inventory(fleet, tmp_path))
-
-
-def deploy(fleet_file: Path, *args: str):
-    return rosdeploy("--json", "apply", fleet_file, "--yes", *args)
 
 
 def test_first_deploy_noop_and_single_robot_upgrade(fleet, fleet_file: Path) -> None:

@@ -9,18 +9,11 @@ import pytest
 
 from rosdeploy import sim as simulator
 from rosdeploy.errors import EXIT_ABORTED, EXIT_OK, EXIT_PARTIAL
-from robots import RobotShell, all_healthy, rosdeploy, shells, versions, write_fleet, write_inventory
+from robots import RobotShell, all_healthy, apply, shells, versions
 
 pytestmark = pytest.mark.integration
 
 
-@pytest.fixture
-def fleet_file(fleet, tmp_path: Path) -> Path:
-    return write_fleet(tmp_path, write_inventory(fleet, tmp_path))
-
-
-def apply(fleet_file: Path, *args: str):
-    return rosdeploy("--json", "apply", fleet_file, "--yes", *args)
 
 
 def test_failure_in_wave_two_returns_wave_one_to_the_old_release(fleet, fleet_file: Path) -> None:
