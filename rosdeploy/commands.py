@@ -278,16 +278,6 @@ def record(root: str, project: str, entry: dict) -> Command:
     return script("history", RECORD_SCRIPT, root, project, json.dumps(entry, sort_keys=True))
 
 
-WRITE_SCRIPT = _PROLOGUE + r'''
-name=$1; release=$2
-tmp=$dir/releases/$release/.$name.tmp
-cat > "$tmp" && mv "$tmp" "$dir/releases/$release/$name"
-'''
-
-
-def write_file(root: str, project: str, release: str, name: str, content: bytes) -> Command:
-    return script("write", WRITE_SCRIPT, root, project, name, release, stdin=content)
-
 
 
 

@@ -65,8 +65,10 @@ def known_hosts_for(host: Host, options: SSHOptions) -> list[str]:
     return files
 
 
+@functools.lru_cache(maxsize=8)
 def fabric_config(options: SSHOptions) -> Config:
-    """One fabric Config per run: ssh_config is parsed once, not once per robot."""
+    """One fabric Config per run (SSHOptions is frozen, so it keys the cache): ssh_config is
+    parsed once, not once per robot."""
     path = os.path.expanduser(options.ssh_config) if options.ssh_config else None
     if path and not os.path.exists(path):
         raise ConnectError("ssh", f"ssh config {path} does not exist: fix `ssh.config` in the fleet file")

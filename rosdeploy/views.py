@@ -11,7 +11,7 @@ from rosdeploy.errors import RemoteError
 from rosdeploy.health import expected_services
 from rosdeploy.model import Host, RenderedRelease
 from rosdeploy.commands import parse_sections
-from rosdeploy.robot import unhealthy_services
+from rosdeploy.robot import RobotState, unhealthy_services
 
 
 @dataclass(frozen=True)
@@ -31,15 +31,22 @@ class RobotStatus:
     lock: Mapping[str, Any] | None = None
 
 
-def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) -> RobotStatus:
+def quick_state(ctx: RunContext, host: Host) -> RobotState | RemoteError:
+    """Connect, read the quick state, close: the one round trip status and history need."""
     run = RobotRun(ctx, host)
     try:
         run.open()
-        state = run.read_state(full=False)
+        return run.read_state(full=False)
     except RemoteError as exc:
-        return RobotStatus(host.name, False, error=str(exc))
+        return exc
     finally:
         run.close()
+
+
+def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) -> RobotStatus:
+    state = quick_state(ctx, host)
+    if isinstance(state, RemoteError):
+        return RobotStatus(host.name, False, error=str(state))
     manifest = state.manifest or {}
     problems = unhealthy_services(state.containers, expected_services(ctx.spec)) if state.current else {}
     return RobotStatus(
@@ -99,12 +106,7 @@ def _diff(name: str, old: str | None, new: str) -> str:
 
 def history_host(ctx: RunContext, host: Host) -> tuple[bool, str, tuple[Mapping[str, Any], ...]]:
     """(reachable, error, entries newest first)."""
-    run = RobotRun(ctx, host)
-    try:
-        run.open()
-        state = run.read_state(full=False)
-    except RemoteError as exc:
-        return False, str(exc), ()
-    finally:
-        run.close()
+    state = quick_state(ctx, host)
+    if isinstance(state, RemoteError):
+        return False, str(state), ()
     return True, "", tuple(reversed(state.history))
