@@ -12,6 +12,7 @@ we replace it with RejectPolicy before connecting.
 from __future__ import annotations
 
 import functools
+import getpass
 import os
 import select
 import socket
@@ -208,6 +209,9 @@ def connect(host: Host, options: SSHOptions, config: Config | None = None) -> SS
 
 def local_user_at_host() -> str:
     """Who deployed, for the manifest and history: user@machine of the operator."""
-    user = os.environ.get("USER") or os.environ.get("LOGNAME") or str(os.getuid())
+    try:
+        user = getpass.getuser()   # $USER/$LOGNAME, else the password database (CI has no $USER)
+    except (KeyError, OSError):
+        user = str(os.getuid())
     return f"{user}@{socket.gethostname()}"
 
