@@ -49,12 +49,6 @@ _COMPOSE = r'''
 compose() { if [ "$flavor" = v1 ]; then docker-compose "$@"; else docker compose "$@"; fi; }
 '''
 
-# One JSON line per container of the compose project; shared by `state` and the health poll.
-_INSPECT = r'''
-ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project" 2>/dev/null)
-[ -n "$ids" ] && docker inspect --format '{"name":{{json .Name}},"service":{{json (index .Config.Labels "com.docker.compose.service")}},"image":{{json .Config.Image}},"status":{{json .State.Status}},"health":{{if .State.Health}}{{json .State.Health.Status}}{{else}}null{{end}},"restarts":{{.RestartCount}},"started":{{json .State.StartedAt}},"workdir":{{json (index .Config.Labels "com.docker.compose.project.working_dir")}}}' $ids 2>/dev/null
-'''
-
 # One `docker ps` (a single CLI start, the cost that matters when a machine hosts
 # many targets) gives state, health (in the status text) and the release dir.
 _PS = r"""
@@ -189,15 +183,47 @@ def pull(images: tuple[str, ...], timeout: float | None = None) -> Command:
 
 
 UP_SCRIPT = _PROLOGUE + _COMPOSE + r'''
-release=$1; flavor=$2
+release=$1; flavor=$2; mode=$3; shift 3
 cd "$dir/releases/$release" || { echo "release $release is not on this robot" >&2; exit 4; }
-compose -p "$project" -f compose.yml up -d --remove-orphans 2>&1
+case $mode in
+  all) compose -p "$project" -f compose.yml up -d --remove-orphans 2>&1 ;;
+  each)
+    # One call per service: within one call compose would still wait for
+    # `depends_on: service_healthy` between them; the caller checks dependencies itself.
+    for service in "$@"; do
+      compose -p "$project" -f compose.yml up -d --remove-orphans --no-deps "$service" 2>&1 || exit $?
+    done ;;
+  together)
+    # Create everything, then start it all at once, as dockerd does when the robot boots.
+    compose -p "$project" -f compose.yml up --no-start --remove-orphans 2>&1 || exit $?
+    ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project" --filter status=created --filter status=exited)
+    [ -z "$ids" ] || docker start $ids >/dev/null ;;
+  *) echo "unknown start mode $mode" >&2; exit 2 ;;
+esac
 '''
 
 
-def up(root: str, project: str, release: str, flavor: str, timeout: float | None = None) -> Command:
-    """Switch the compose project to a release: the same project name, so containers are replaced."""
-    return script("up", UP_SCRIPT, root, project, release, flavor, timeout=timeout)
+def up(root: str, project: str, release: str, flavor: str, services: tuple[str, ...] = (),
+       together: bool = False, timeout: float | None = None) -> Command:
+    """Switch the compose project to a release: the same project name, so containers are
+    replaced. All services the compose way; or only `services`, in that order, without
+    waiting on their dependencies; or `together`: every service started at once."""
+    mode = "together" if together else "each" if services else "all"
+    return script("up", UP_SCRIPT, root, project, release, flavor, mode, *services, timeout=timeout)
+
+
+def health_test(container: str, test: tuple[str, ...], timeout: float) -> Command | None:
+    """Run a container's own HEALTHCHECK test now, the way Docker runs it (exec, exit 0 = pass).
+    None for NONE or an unknown form. Docker < 25 first runs it one full `interval` after
+    the start (no `start_interval`); running it ourselves ends that wait."""
+    kind, args = (test[0], test[1:]) if test else ("NONE", ())
+    if kind == "CMD" and args:
+        argv = ("docker", "exec", container, *args)
+    elif kind == "CMD-SHELL" and args:
+        argv = ("docker", "exec", container, "/bin/sh", "-c", args[0])
+    else:
+        return None
+    return Command(argv, timeout=timeout, label=f"health-test {container}")
 
 
 DOWN_SCRIPT = _PROLOGUE + _COMPOSE + r'''
@@ -211,15 +237,24 @@ def down(root: str, project: str, release: str, flavor: str) -> Command:
 
 
 CONTAINERS_SCRIPT = r'''
-project=$1
-''' + _INSPECT + r'''
+project=$1; shift
+fmt='{"id":{{json .Id}},"name":{{json .Name}},"service":{{json (index .Config.Labels "com.docker.compose.service")}},"image":{{json .Config.Image}},"status":{{json .State.Status}},"health":{{if .State.Health}}{{json .State.Health.Status}}{{else}}null{{end}},"restarts":{{.RestartCount}},"started":{{json .State.StartedAt}},"workdir":{{json (index .Config.Labels "com.docker.compose.project.working_dir")}},"test":{{if .Config.Healthcheck}}{{json .Config.Healthcheck.Test}},"test_timeout":{{json .Config.Healthcheck.Timeout}}{{else}}null{{end}}}'
+if [ $# -gt 0 ]; then
+  # Known containers by name: one docker CLI start per poll, not two (its whole cost on the
+  # robot). A name that is gone is left out; the caller lists the project again then.
+  docker inspect --format "$fmt" "$@" 2>/dev/null
+else
+  ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project" 2>/dev/null)
+  [ -z "$ids" ] || docker inspect --format "$fmt" $ids 2>/dev/null
+fi
 exit 0
 '''
 
 
-def containers(project: str) -> Command:
-    """One line of JSON per container of the compose project (health gate poll)."""
-    return script("containers", CONTAINERS_SCRIPT, project)
+def containers(project: str, names: tuple[str, ...] = ()) -> Command:
+    """One line of JSON per container of the compose project (health gate poll);
+    with `names`, only those containers, found without listing the project."""
+    return script("containers", CONTAINERS_SCRIPT, project, *names)
 
 
 def logs(container: str, lines: int = 20) -> Command:

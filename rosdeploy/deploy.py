@@ -16,13 +16,14 @@ import tarfile
 import threading
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Callable, Iterator
 
 from rosdeploy import __version__, commands
 from rosdeploy.errors import CommandFailed, ConnectError, RemoteError
-from rosdeploy.health import Verdict, diagnose, expected_services, wait_healthy
+from rosdeploy.health import (Poller, Verdict, diagnose, expected_services, settled, start_levels,
+                              wait_healthy, wait_ready)
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
@@ -133,16 +134,34 @@ class RobotRun:
         except RemoteError:
             pass   # connection gone: the lock names this run, `--break-lock` clears it
 
-    def start(self, release: str, flavor: str) -> Verdict:
-        """`compose up` the release, then the health gate; a failed `up` is diagnosed the same way."""
+    def start(self, release: str, flavor: str, together: bool = False) -> Verdict:
+        """Start the release, then the health gate; a failed `up` is diagnosed the same way.
+
+        A new release starts level by level in `depends_on` order, each level as soon as
+        the one before passes its health checks. `together`: going back to a release that
+        already passed the gate on this robot. Every service starts at once (Docker's
+        restart policies start it that way after every reboot, ignoring depends_on), and
+        the gate is the brake's: running and passing health checks (see wait_healthy).
+        """
+        levels = ((),) if together else start_levels(self.spec)
+        began = time.monotonic()
+        deadline = began + self.spec.health.timeout
+        poller = Poller(self.t, self.spec)
         with self.step(f"start {release}"):
-            out = self.t.run(commands.up(self.root, self.spec.project, release, flavor,
-                                         timeout=self.spec.command_timeout))
+            for i, level in enumerate(levels):
+                if i:
+                    ready = wait_ready(poller, sum(levels[:i], ()), deadline, began)
+                    if not ready.ok:
+                        return ready
+                names = level if len(levels) > 1 else ()   # one level: compose's own `up`
+                out = self.t.run(commands.up(self.root, self.spec.project, release, flavor, names,
+                                             together=together, timeout=self.spec.command_timeout))
+                if not out.ok:
+                    lines = (out.stdout + out.stderr).strip().splitlines()
+                    return diagnose(self.t, self.spec, "compose up failed: " + (lines[-1] if lines else "no output"))
         with self.step("health"):
-            if not out.ok:
-                lines = (out.stdout + out.stderr).strip().splitlines()
-                return diagnose(self.t, self.spec, "compose up failed: " + (lines[-1] if lines else "no output"))
-            return wait_healthy(self.t, self.spec)
+            return wait_healthy(self.t, self.spec, since=began, deadline=deadline, known_good=together,
+                                poller=poller)
 
     def history(self, entry: dict) -> None:
         self.t.run(commands.record(self.root, self.spec.project, self.entry(entry)))
@@ -217,6 +236,8 @@ def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
     base = {"old_release": old, "new_release": new}
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before this robot started", **base)
+    if state.current == new:    # just deployed: judge `starting` services the way the gate did
+        state = replace(state, containers=settled(run.t, run.spec, state.containers))
     if state.lock is None and up_to_date(state, release, run.spec):
         return run.result(UNCHANGED, running_release=old, reason="already on this release and healthy", **base)
     state = run.read_state(full=True)    # the preflight facts, only when something will change
@@ -266,7 +287,7 @@ def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict
             run.t.run(commands.down(run.root, run.spec.project, new, state.flavor or "v2"))
         return run.result(STOPPED, running_release=None,
                           reason=why + "; no previous release on the robot, so the failed one was stopped", **failed)
-    back = run.start(old, state.flavor or "v2")
+    back = run.start(old, state.flavor or "v2", together=True)
     run.history({"event": "auto-rollback", "release": old, "rolled_back_from": new,
                  "result": "active" if back.ok else "unhealthy", "reason": verdict.reason})
     if back.ok:
@@ -339,7 +360,8 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     if holder is not None:
         return run.result(LOCKED, reason=f"locked by another run: {holder} (use --break-lock if it is stale)",
                           **base)
-    verdict = run.start(target, state.flavor)
+    passed_before = any(e.get("release") == target and e.get("result") == "active" for e in state.history)
+    verdict = run.start(target, state.flavor, together=passed_before)
     run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
                           "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback"})
     base["running_release"] = target

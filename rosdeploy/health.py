@@ -1,8 +1,8 @@
 """The health gate: is the release that was just started really working?
 
 Containers first (cheap, one `docker inspect` per poll): every expected service
-running, Docker health `healthy` where the image or compose declares a check,
-no restarts. Then, once, the ROS graph: rosdeploy's probe runs inside a
+running, healthy where the image or compose declares a check (Docker's verdict, or
+the check itself run by rosdeploy while Docker still says `starting`), no restarts. Then, once, the ROS graph: rosdeploy's probe runs inside a
 container of the release and checks each expected topic and its rate. The
 probe costs ~0.4 CPU-s, so it runs once per gate (plus one retry), never in a
 polling loop.
@@ -21,6 +21,9 @@ from rosdeploy.model import FleetSpec, HealthPolicy
 from rosdeploy.robot import Container, unhealthy_services
 from rosdeploy.transport import Transport
 
+FAST_POLL = 0.5       # s between polls while services usually come up
+OWN_TEST_EVERY = 1.0  # s between runs of one container's own health test
+FAST_WINDOW = 15.0   # s after a start during which the gate polls fast
 PROBE_SOURCE = (Path(__file__).parent / "ros_probe.py").read_text(encoding="utf-8")
 
 
@@ -38,9 +41,25 @@ def expected_services(spec: FleetSpec) -> tuple[str, ...]:
     return tuple(s.name for s in spec.services if not s.profiles)
 
 
-def read_containers(t: Transport, project: str) -> tuple[Container, ...]:
-    result = t.run(commands.containers(project))
+def read_containers(t: Transport, project: str, names: tuple[str, ...] = ()) -> tuple[Container, ...]:
+    result = t.run(commands.containers(project, names))
     return tuple(Container.from_json(c) for c in commands.parse_containers(result.stdout))
+
+
+def start_levels(spec: FleetSpec) -> tuple[tuple[str, ...], ...]:
+    """Expected services in start order: each level depends only on earlier levels.
+    The fleet file is checked for cycles, so every service lands in a level."""
+    expected = expected_services(spec)
+    deps = {s.name: {d for d in s.depends_on if d in expected} for s in spec.services if s.name in expected}
+    levels: list[tuple[str, ...]] = []
+    placed: set[str] = set()
+    while len(placed) < len(expected):
+        level = tuple(n for n in expected if n not in placed and deps[n] <= placed)
+        if not level:   # unreachable for a checked fleet file; start the rest together
+            level = tuple(n for n in expected if n not in placed)
+        levels.append(level)
+        placed.update(level)
+    return tuple(levels)
 
 
 def broken(containers: tuple[Container, ...], expected: tuple[str, ...],
@@ -58,35 +77,119 @@ def broken(containers: tuple[Container, ...], expected: tuple[str, ...],
     return None
 
 
-def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = None) -> Verdict:
+class Poller:
+    """Container polls for one start of a release: restart baselines, and the services'
+    own health tests run by rosdeploy while Docker still says `starting`.
+
+    Docker < 25 runs a HEALTHCHECK first one full `interval` after the start (5 s and
+    more is common), and compose's `depends_on: service_healthy` waits for that tick.
+    A test that passes when we run it is what Docker would conclude at its next tick,
+    so the gate takes it instead of waiting; failures are left to Docker's own retries.
+
+    Polls are what the gate costs the robot (each docker CLI start is ~40 ms of CPU, a
+    `docker exec` ~95 ms, on the simulated robots): known containers are inspected by
+    name (one CLI start), and a container's own test runs at most every OWN_TEST_EVERY.
+    """
+
+    def __init__(self, t: Transport, spec: FleetSpec) -> None:
+        self.t, self.spec = t, spec
+        self.baseline: dict[str, int] = {}
+        self.names: tuple[str, ...] = ()
+        self.passed: set[str] = set()          # container ids whose own test passed
+        self.tested: dict[str, float] = {}     # container id -> when its own test last ran
+
+    def poll(self, expected: tuple[str, ...]) -> tuple[tuple[Container, ...], tuple[str, str] | None]:
+        containers = read_containers(self.t, self.spec.project, self.names)
+        if not {c.service for c in containers} >= set(expected) and self.names:
+            containers = read_containers(self.t, self.spec.project)   # a service is new or gone
+        self.names = tuple(c.name for c in containers)
+        for c in containers:
+            self.baseline.setdefault(c.name, c.restarts)
+        failure = broken(containers, expected, self.baseline)
+        if failure is None:
+            containers = tuple(self._checked(c, expected) for c in containers)
+        return containers, failure
+
+    def _checked(self, c: Container, expected: tuple[str, ...]) -> Container:
+        if c.health != "starting" or c.status != "running" or c.service not in expected:
+            return c
+        key = c.id or c.name
+        if key not in self.passed:
+            now = time.monotonic()
+            command = commands.health_test(c.name, c.test, min(c.test_timeout, 10.0))
+            if command is None or now - self.tested.get(key, -OWN_TEST_EVERY) < OWN_TEST_EVERY:
+                return c
+            self.tested[key] = now
+            if not self.t.run(command).ok:
+                return c
+            self.passed.add(key)
+        return replace(c, health="healthy")
+
+
+def settled(t: Transport, spec: FleetSpec, containers: tuple[Container, ...]) -> tuple[Container, ...]:
+    """Containers as the gate judges them: a `starting` one whose own check passes is healthy.
+    No extra round trip unless an expected container is `starting` (just after a deploy,
+    before Docker's first tick), so a no-op or `status` then agrees with the gate."""
+    expected = expected_services(spec)
+    if not any(c.health == "starting" and c.service in expected for c in containers):
+        return containers
+    return Poller(t, spec).poll(expected)[0]
+
+
+def wait_ready(poller: Poller, services: tuple[str, ...], deadline: float, since: float) -> Verdict:
+    """Until `services` run and pass their health checks (what `service_healthy` means),
+    so the next start level can go. No stable window, no ROS probe: the final gate does those."""
+    spec = poller.spec
+    while True:
+        containers, failure = poller.poll(services)
+        if failure:
+            return Verdict(False, failure[1], failure[0], containers=containers)
+        waiting = unhealthy_services(containers, services)
+        if not waiting:
+            return Verdict(True, "ready", containers=containers)
+        if time.monotonic() >= deadline:
+            service, why = next(iter(waiting.items()))
+            return Verdict(False, f"{service}: {why} after {spec.health.timeout:g}s (health.timeout)",
+                           service, containers=containers)
+        time.sleep(poll_interval(spec.health, since))
+
+
+def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = None,
+                 since: float | None = None, deadline: float | None = None,
+                 known_good: bool = False, poller: Poller | None = None) -> Verdict:
     """Poll until healthy, broken, or health.timeout. Not interruptible on purpose: once a
     release was started, the gate decides whether it stays or is rolled back.
 
-    The ROS probe starts as soon as the probe container runs, in parallel with waiting
-    for Docker health, so its discovery wait overlaps the health-check interval. It
-    runs at most twice per gate (a second time only if the first ran before the
-    services were healthy).
+    `since`: when the release began to start (the stable window and health.timeout count
+    from there). The ROS probe starts as soon as the probe container runs, in parallel
+    with waiting for health, so its discovery wait overlaps the rest. It runs at most
+    twice per gate (a second time only if the first ran before the services were healthy).
+
+    `known_good`: going back to a release that passed this whole gate before on this
+    robot. Rolling back is the brake, so it waits only for running containers that pass
+    their own health checks: no stable window, no ROS probe (those guard new releases).
     """
     policy = policy or spec.health
+    if known_good:
+        policy = replace(policy, stable=0.0)
     expected = expected_services(spec)
-    start = time.monotonic()
-    deadline = start + policy.timeout
-    baseline: dict[str, int] = {}
+    start = time.monotonic() if since is None else since
+    deadline = start + policy.timeout if deadline is None else deadline
+    poller = poller or Poller(t, spec)
     probe: Future[Verdict] | None = None
     early = True   # the running probe started before every service was healthy
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ros-probe") as pool:
         while True:
-            containers = read_containers(t, spec.project)
-            for c in containers:
-                baseline.setdefault(c.name, c.restarts)
-            failure = broken(containers, expected, baseline)
+            containers, failure = poller.poll(expected)
             if failure:
                 return Verdict(False, failure[1], failure[0], containers=containers)
             waiting = unhealthy_services(containers, expected)
-            if probe is None and _probe_can_start(spec, containers):
+            if probe is None and not known_good and _probe_can_start(spec, containers):
                 early = bool(waiting)
                 probe = pool.submit(_probe_graph, t, spec, containers, policy, deadline)
             if not waiting and time.monotonic() - start >= policy.stable:
+                if known_good:
+                    return Verdict(True, "running and passing health checks", containers=containers)
                 verdict = probe.result() if probe else _probe_graph(t, spec, containers, policy, deadline)
                 if verdict.ok or not early or time.monotonic() + policy.interval >= deadline:
                     return replace(verdict, containers=containers)
@@ -96,7 +199,13 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
                 service, why = next(iter(waiting.items()), ("", "not stable"))
                 return Verdict(False, f"{service}: {why} after {policy.timeout:g}s (health.timeout)",
                                service or None, containers=containers)
-            time.sleep(policy.interval)
+            time.sleep(poll_interval(policy, start))
+
+
+def poll_interval(policy: HealthPolicy, since: float) -> float:
+    """Poll fast while services usually come up (a poll is one `docker inspect`), then
+    every `health.interval`, so a slow start does not keep the robot busy."""
+    return min(policy.interval, FAST_POLL) if time.monotonic() - since < FAST_WINDOW else policy.interval
 
 
 def _probe_can_start(spec: FleetSpec, containers: tuple[Container, ...]) -> bool:

@@ -22,6 +22,9 @@ class Container:
     health: str | None     # starting | healthy | unhealthy | None (no health check)
     restarts: int
     workdir: str = ""
+    id: str = ""                 # from `docker inspect` (not in `docker ps` output)
+    test: tuple[str, ...] = ()   # HEALTHCHECK test, e.g. ("CMD", "/opt/check"); () when none
+    test_timeout: float = 30.0   # seconds (Docker's default)
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> "Container":
@@ -30,7 +33,9 @@ class Container:
         return cls(name=str(data.get("name", "")).lstrip("/"), service=str(data.get("service") or ""),
                    image=str(data.get("image", "")), status=str(data.get("status", "")),
                    health=health, restarts=int(data.get("restarts") or 0),
-                   workdir=str(data.get("workdir") or ""))
+                   workdir=str(data.get("workdir") or ""),
+                   id=str(data.get("id") or ""), test=tuple(str(a) for a in data.get("test") or ()),
+                   test_timeout=(int(data.get("test_timeout") or 0) / 1e9) or 30.0)
 
 
     @property

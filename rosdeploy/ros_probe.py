@@ -4,7 +4,7 @@ This file is not imported by rosdeploy: its source is sent to the robot and run
 with `python3 -c SOURCE SPEC_JSON` in a container that has rclpy, so it sees
 the robot's ROS graph on the release's own ROS_DOMAIN_ID and RMW. It must stay
 self-contained (stdlib + rclpy) and cheap: one participant, one discovery
-wait, one measuring window, then exit. Prints one JSON line; exit 0 = healthy.
+wait, one measuring window (cut short once the counts prove the rates), then exit. Prints one JSON line; exit 0 = healthy.
 """
 import importlib
 import json
@@ -30,15 +30,19 @@ def _discover(node, rclpy, wanted, timeout):
 
 
 def _measure(node, rclpy, topics, found, window):
+    """topics: name -> min_rate. Listens up to `window` seconds, less once every topic
+    has sent more than min_rate * window messages: the count only grows, so the full
+    window could not end below min_rate any more."""
     from rclpy.qos import qos_profile_sensor_data  # best effort: matches reliable and best-effort publishers
 
     stamps = {name: [] for name in topics}
+    enough = {name: int(rate * window) + 2 for name, rate in topics.items()}
     subs = [node.create_subscription(_message_class(found[name][0]), name,
                                      lambda _msg, n=name: stamps[n].append(time.monotonic()),
                                      qos_profile_sensor_data)
             for name in topics]
     deadline = time.monotonic() + window
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and any(len(stamps[n]) < enough[n] for n in topics):
         rclpy.spin_once(node, timeout_sec=0.05)
     for sub in subs:
         node.destroy_subscription(sub)
@@ -59,7 +63,7 @@ def probe(spec):
     try:
         topics = {t["name"]: t.get("min_rate") for t in spec["topics"]}
         found = _discover(node, rclpy, set(topics), spec.get("discovery_timeout", 10.0))
-        rated = [n for n, r in topics.items() if r and n in found]
+        rated = {n: r for n, r in topics.items() if r and n in found}
         rates = _measure(node, rclpy, rated, found, spec.get("window", 3.0)) if rated else {}
     finally:
         node.destroy_node()

@@ -2,13 +2,13 @@
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
 from rosdeploy import commands
 from rosdeploy.deploy import RobotRun, RunContext, preflight
 from rosdeploy.errors import RemoteError
-from rosdeploy.health import expected_services
+from rosdeploy.health import expected_services, settled
 from rosdeploy.model import Host, RenderedRelease
 from rosdeploy.commands import parse_sections
 from rosdeploy.robot import RobotState, unhealthy_services
@@ -31,12 +31,16 @@ class RobotStatus:
     lock: Mapping[str, Any] | None = None
 
 
-def quick_state(ctx: RunContext, host: Host) -> RobotState | RemoteError:
-    """Connect, read the quick state, close: the one round trip status and history need."""
+def quick_state(ctx: RunContext, host: Host, judge_health: bool = False) -> RobotState | RemoteError:
+    """Connect, read the quick state, close: the one round trip status and history need.
+    `judge_health`: `starting` containers are judged as the health gate does (see settled)."""
     run = RobotRun(ctx, host)
     try:
         run.open()
-        return run.read_state(full=False)
+        state = run.read_state(full=False)
+        if judge_health:
+            state = replace(state, containers=settled(run.t, ctx.spec, state.containers))
+        return state
     except RemoteError as exc:
         return exc
     finally:
@@ -44,7 +48,7 @@ def quick_state(ctx: RunContext, host: Host) -> RobotState | RemoteError:
 
 
 def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) -> RobotStatus:
-    state = quick_state(ctx, host)
+    state = quick_state(ctx, host, judge_health=True)
     if isinstance(state, RemoteError):
         return RobotStatus(host.name, False, error=str(state))
     manifest = state.manifest or {}

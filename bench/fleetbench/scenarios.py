@@ -10,6 +10,7 @@ afterwards is checked from their own Docker engines (not from either tool's outp
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -80,9 +81,18 @@ def robot_services(robot: str, project: str) -> dict[str, dict]:
     return {r["service"]: {**r, "tag": r["image"].rsplit(":", 1)[-1]} for r in rows}
 
 
-def verify(bench: SimBench, version: str, what: str) -> dict[str, dict]:
-    """Every robot runs exactly the release's services, all at `version`, running and healthy."""
+def verify(bench: SimBench, version: str, what: str, settle: float = 20.0) -> dict[str, dict]:
+    """Every robot runs exactly the release's services, all at `version`, running and healthy.
+
+    Untimed. rosdeploy may run a `starting` container's own check and finish before
+    Docker's first tick (5 s in the demo images): Docker gets `settle` seconds to leave
+    `starting`, then its verdict must be `healthy`.
+    """
+    deadline = time.monotonic() + settle
     seen = {robot: robot_services(robot, bench.project) for robot in bench.robots}
+    while time.monotonic() < deadline and any(c["health"] == "starting" for s in seen.values() for c in s.values()):
+        time.sleep(0.5)
+        seen = {robot: robot_services(robot, bench.project) for robot in bench.robots}
     for robot, services in seen.items():
         wrong = {s: (c["tag"], c["status"], c["health"]) for s, c in services.items()
                  if (c["tag"], c["status"], c["health"] or "healthy") != (version, "running", "healthy")}

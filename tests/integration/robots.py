@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import time
 from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import dataclass
 from pathlib import Path
@@ -118,8 +119,20 @@ def versions(shell: RobotShell) -> dict[str, str]:
     return {s: c["image"].rsplit(":", 1)[-1] for s, c in shell.containers().items()}
 
 
-def all_healthy(shell: RobotShell) -> bool:
+def identity(shell: RobotShell) -> dict[str, tuple]:
+    """What must not change when nothing may change: which containers run, since when, from what."""
+    return {s: (c["id"], c["started"], c["restarts"], c["image"]) for s, c in shell.containers().items()}
+
+
+def all_healthy(shell: RobotShell, settle: float = 20.0) -> bool:
+    """Docker's own verdict. rosdeploy may run a `starting` container's check itself and go
+    on before Docker's first tick (one `interval`, 5 s in the demo images), so give Docker
+    that long to agree; `starting` never counts as healthy."""
+    deadline = time.monotonic() + settle
     cs = shell.containers()
+    while any(c["health"] == "starting" for c in cs.values()) and time.monotonic() < deadline:
+        time.sleep(0.5)
+        cs = shell.containers()
     return bool(cs) and all(c["status"] == "running" and c["health"] in (None, "healthy") for c in cs.values())
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from rosdeploy import sim as simulator
 from rosdeploy.errors import EXIT_ABORTED, EXIT_OK, EXIT_PARTIAL
-from robots import RobotShell, all_healthy, rosdeploy, shells, versions, write_fleet, write_inventory
+from robots import RobotShell, all_healthy, identity, rosdeploy, shells, versions, write_fleet, write_inventory
 from robots import apply as deploy
 
 pytestmark = pytest.mark.integration
@@ -102,7 +102,7 @@ def test_emergency_rollback_works_with_the_registry_down(fleet, fleet_file: Path
 def test_registry_down_fails_the_pull_and_changes_nothing(fleet, fleet_file: Path) -> None:
     assert deploy(fleet_file, "--limit", "robot1").code == EXIT_OK
     shell = RobotShell(fleet, "robot1")
-    before = shell.containers()
+    before = identity(shell)
     for node in ("driver", "perception"):   # a robot keeps pulled images: make 1.1.0 need a pull
         simulator.robot_exec("robot1", ["docker", "image", "rm", "-f", f"registry.local:5000/demo/{node}:1.1.0"])
     simulator.stop_registry()
@@ -112,21 +112,21 @@ def test_registry_down_fails_the_pull_and_changes_nothing(fleet, fleet_file: Pat
         simulator.start_registry()
     assert run.code != EXIT_OK
     assert run.host("robot1")["outcome"] == "failed" and "pull failed" in run.host("robot1")["reason"]
-    assert shell.containers() == before
+    assert identity(shell) == before and all_healthy(shell)
     assert not any(r.startswith("1.1.0") for r in shell.run("ls /home/robot/rosdeploy/demo/releases").split())
 
 
 def test_missing_device_fails_preflight_and_keeps_running(fleet, fleet_file: Path) -> None:
     assert deploy(fleet_file, "--limit", "robot3").code == EXIT_OK
     shell = RobotShell(fleet, "robot3")
-    before = shell.containers()
+    before = identity(shell)
     simulator.robot_exec("robot3", ["rm", "-f", "/dev/ttyUSB0"])
     run = deploy(fleet_file, "--limit", "robot3", "--version", "1.1.0")
     assert run.code == EXIT_ABORTED, "one failure exceeds max_fail=0"
     assert run.host("robot3")["outcome"] == "failed"
     reason = run.host("robot3")["reason"]
     assert "preflight" in reason and "/dev/robot/motor" in reason and "devices.motor" in reason
-    assert shell.containers() == before, "the running release keeps running"
+    assert identity(shell) == before and all_healthy(shell), "the running release keeps running"
 
 
 def test_changed_host_key_is_refused(fleet, fleet_file: Path) -> None:

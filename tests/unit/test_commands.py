@@ -141,3 +141,54 @@ def test_a_lock_that_cannot_be_created_is_an_error_not_held(tmp_path: Path) -> N
     out = run_local(commands.lock("~/r", "demo", {"run": "A"}), tmp_path)
     assert out.returncode not in (0, 3)
     assert b"cannot create" in out.stderr
+
+
+def fake_docker(tmp_path: Path) -> tuple[dict, Path]:
+    """A `docker` on PATH that logs each call's argv (one line) and answers `ps -aq`."""
+    bin_dir, log = tmp_path / "bin", tmp_path / "docker.log"
+    bin_dir.mkdir()
+    (bin_dir / "docker").write_text('#!/bin/sh\necho "$*" >> "$DOCKER_LOG"\n'
+                                    'case "$1 $2" in "ps -aq") echo c1; echo c2;; esac\n')
+    (bin_dir / "docker").chmod(0o755)
+    env = {"HOME": str(tmp_path), "PATH": f"{bin_dir}:{os.environ['PATH']}", "DOCKER_LOG": str(log)}
+    (tmp_path / "r/demo/releases/1.0.0-x").mkdir(parents=True)
+    return env, log
+
+
+@pytest.mark.parametrize("kwargs,expected", [
+    ({}, ["compose -p demo -f compose.yml up -d --remove-orphans"]),
+    # one call per service, in the caller's order, none waiting on depends_on
+    ({"services": ("driver", "perception")},
+     ["compose -p demo -f compose.yml up -d --remove-orphans --no-deps driver",
+      "compose -p demo -f compose.yml up -d --remove-orphans --no-deps perception"]),
+    # create all, then one `docker start` of every created or stopped container
+    ({"together": True},
+     ["compose -p demo -f compose.yml up --no-start --remove-orphans",
+      "ps -aq --filter label=com.docker.compose.project=demo --filter status=created --filter status=exited",
+      "start c1 c2"]),
+])
+def test_up_modes_run_these_docker_calls(tmp_path: Path, kwargs: dict, expected: list[str]) -> None:
+    env, log = fake_docker(tmp_path)
+    cmd = commands.up("~/r", "demo", "1.0.0-x", "v2", **kwargs)
+    out = subprocess.run(["sh", "-c", cmd.wire()], capture_output=True, env=env)
+    assert out.returncode == 0, out.stderr
+    assert log.read_text().splitlines() == expected
+
+
+def test_up_of_a_missing_release_changes_nothing(tmp_path: Path) -> None:
+    env, log = fake_docker(tmp_path)
+    cmd = commands.up("~/r", "demo", "2.0.0-y", "v2", together=True)
+    out = subprocess.run(["sh", "-c", cmd.wire()], capture_output=True, env=env)
+    assert out.returncode == 4 and b"release 2.0.0-y is not on this robot" in out.stderr
+    assert not log.exists()
+
+
+@pytest.mark.parametrize("test,argv", [
+    (("CMD", "/opt/check", "--fast"), ("docker", "exec", "c1", "/opt/check", "--fast")),
+    (("CMD-SHELL", "curl -f localhost || exit 1"), ("docker", "exec", "c1", "/bin/sh", "-c", "curl -f localhost || exit 1")),
+    (("NONE",), None),
+    ((), None),
+])
+def test_health_test_runs_the_containers_own_check(test: tuple, argv: tuple | None) -> None:
+    cmd = commands.health_test("c1", test, 3.0)
+    assert (cmd.argv if cmd else None) == argv

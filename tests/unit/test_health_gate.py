@@ -5,7 +5,9 @@ import json
 import threading
 
 from rosdeploy.commands import Command
-from rosdeploy.health import wait_healthy
+from dataclasses import replace
+
+from rosdeploy.health import settled, start_levels, wait_healthy
 from rosdeploy.model import FleetSpec, HealthPolicy, Service, Topic
 from rosdeploy.transport import Result
 
@@ -17,18 +19,22 @@ SPEC = FleetSpec(path="f.yml", project="demo", inventory="i.yml", registry="r:50
 
 def c(service: str, status: str = "running", health: str | None = "healthy", restarts: int = 0) -> dict:
     return {"name": f"/demo-{service}-1", "service": service, "image": "x", "status": status,
-            "health": health, "restarts": restarts}
+            "health": health, "restarts": restarts, "test": ["CMD", "/opt/check"], "test_timeout": 3_000_000_000}
 
 
 class Scripted:
     """Answers `containers` with the next scripted poll (the last one repeats) and the probe with `probe`."""
 
-    def __init__(self, polls: list[list[dict]], probe: dict | None = None) -> None:
+    def __init__(self, polls: list[list[dict]], probe: dict | None = None, tests_pass: bool = False) -> None:
         self.polls, self.probe, self.probes = polls, probe, 0
+        self.tests_pass, self.tests = tests_pass, []
         self.lock = threading.Lock()
 
     def run(self, command: Command) -> Result:
         with self.lock:
+            if command.label.startswith("health-test"):
+                self.tests.append(command.argv)
+                return Result("test", "", "", 0 if self.tests_pass else 1, 0.0)
             if command.label.startswith("ros-probe"):
                 self.probes += 1
                 report = self.probe or {"topics": {"/joint_states": {"present": True, "ok": True, "rate": 10}}}
@@ -80,3 +86,53 @@ def test_never_healthy_times_out_naming_what_it_waited_for() -> None:
 def test_a_missing_service_is_not_healthy() -> None:
     verdict = wait_healthy(Scripted([[c("driver")]]), SPEC)
     assert not verdict.ok and "perception: no container" in verdict.reason
+
+
+def test_a_starting_service_whose_own_check_passes_is_healthy_before_dockers_tick() -> None:
+    t = Scripted([[c("driver", health="starting"), c("perception", health="starting")]], tests_pass=True)
+    verdict = wait_healthy(t, SPEC)
+    assert verdict.ok, verdict.reason
+    assert ("docker", "exec", "demo-driver-1", "/opt/check") in t.tests
+    assert len(t.tests) == 2      # a passed check is not run again on later polls
+
+
+def test_a_failing_own_check_keeps_waiting_for_docker() -> None:
+    t = Scripted([[c("driver"), c("perception", health="starting")]], tests_pass=False)
+    verdict = wait_healthy(t, SPEC)
+    assert not verdict.ok and "perception: health starting" in verdict.reason
+    assert t.tests and all(argv[2] == "demo-perception-1" for argv in t.tests)
+
+
+def test_docker_unhealthy_wins_over_a_passing_own_check() -> None:
+    t = Scripted([[c("driver"), c("perception", health="unhealthy")]], tests_pass=True)
+    verdict = wait_healthy(t, SPEC)
+    assert not verdict.ok and verdict.service == "perception" and not t.tests
+
+
+def test_a_known_good_release_needs_no_probe_and_no_stable_window() -> None:
+    spec = replace(SPEC, health=replace(SPEC.health, stable=60.0, timeout=5.0))
+    t = Scripted([[c("driver"), c("perception")]])
+    verdict = wait_healthy(t, spec, known_good=True)
+    assert verdict.ok and t.probes == 0
+    assert not wait_healthy(Scripted([[c("driver"), c("perception")]]), replace(spec, health=replace(
+        spec.health, timeout=0.2))).ok      # a new release still waits out the stable window
+
+
+def test_start_levels_follow_depends_on_and_skip_profiles() -> None:
+    services = (Service("nav", "i/nav", "1", depends_on=("perception", "driver")),
+                Service("perception", "i/p", "1", depends_on=("driver",)),
+                Service("driver", "i/d", "1"), Service("lidar", "i/l", "1"),
+                Service("rviz", "i/r", "1", profiles=("dev",)))
+    spec = replace(SPEC, services=services)
+    assert start_levels(spec) == (("driver", "lidar"), ("perception",), ("nav",))
+
+
+def test_settled_judges_starting_containers_like_the_gate_and_costs_nothing_otherwise() -> None:
+    from rosdeploy.robot import Container
+    quick = tuple(Container.from_json(x) for x in (c("driver"), c("perception", health="starting")))
+    t = Scripted([[c("driver"), c("perception", health="starting")]], tests_pass=True)
+    assert [x.health for x in settled(t, SPEC, quick)] == ["healthy", "healthy"]
+    assert [x.health for x in settled(Scripted([[c("driver"), c("perception", health="starting")]]), SPEC,
+                                      quick)] == ["healthy", "starting"]
+    calm = Scripted([])   # would fail on any call
+    assert settled(calm, SPEC, quick[:1]) == quick[:1]

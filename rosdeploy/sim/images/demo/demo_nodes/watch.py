@@ -18,7 +18,8 @@ from demo_nodes import Config, config
 from demo_nodes.spin import spin_until_stopped
 
 WINDOW_S = 4.0      # rate is measured over this sliding window
-CHECK_EVERY_S = 1.0
+WARM_UP_S = 1.0     # no verdict of "healthy" before this much of the window (10 samples at 10 Hz)
+CHECK_EVERY_S = 0.5
 
 
 def message_class(type_name: str) -> type:
@@ -51,7 +52,7 @@ class Watcher:
         window = min(WINDOW_S, now - self.started)
         rate = len(self.stamps) / window if window > 0 else 0.0
         publishers = self.node.count_publishers(self.cfg.topic)
-        healthy = publishers > 0 and rate >= self.cfg.min_healthy_hz and window >= WINDOW_S / 2
+        healthy = publishers > 0 and rate >= self.cfg.min_healthy_hz and window >= WARM_UP_S
         write_verdict(self.cfg.health_file, healthy,
                       f"{self.cfg.topic} publishers={publishers} rate={rate:.1f}Hz "
                       f"min={self.cfg.min_healthy_hz:g}Hz")

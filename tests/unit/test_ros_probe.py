@@ -1,0 +1,55 @@
+"""The probe's measuring loop, with a fake rclpy (the real one runs in tests/integration)."""
+from __future__ import annotations
+
+import sys
+import time
+import types
+
+import pytest
+
+from rosdeploy import ros_probe
+
+
+class FakeNode:
+    def __init__(self) -> None:
+        self.callbacks: list = []
+
+    def create_subscription(self, _type, _name, callback, _qos):
+        self.callbacks.append(callback)
+        return callback
+
+    def destroy_subscription(self, _sub) -> None:
+        pass
+
+
+class FakeRclpy:
+    """Every spin delivers one message per subscription, 100 per second."""
+
+    @staticmethod
+    def spin_once(node: FakeNode, timeout_sec: float) -> None:
+        time.sleep(0.01)
+        for callback in node.callbacks:
+            callback(object())
+
+
+@pytest.fixture(autouse=True)
+def no_message_types(monkeypatch) -> None:
+    monkeypatch.setattr(ros_probe, "_message_class", lambda _t: object)
+    qos = types.ModuleType("rclpy.qos")
+    qos.qos_profile_sensor_data = None
+    monkeypatch.setitem(sys.modules, "rclpy", types.ModuleType("rclpy"))
+    monkeypatch.setitem(sys.modules, "rclpy.qos", qos)
+
+
+def test_measuring_stops_once_the_count_proves_every_min_rate() -> None:
+    began = time.monotonic()
+    rates = ros_probe._measure(FakeNode(), FakeRclpy, {"/a": 5.0, "/b": 2.0}, {"/a": ["t"], "/b": ["t"]}, 3.0)
+    assert time.monotonic() - began < 1.5          # 17 messages at ~100 Hz, not the 3 s window
+    assert all(rate > 5.0 for rate in rates.values())
+
+
+def test_a_topic_below_its_min_rate_is_measured_for_the_whole_window() -> None:
+    began = time.monotonic()
+    rates = ros_probe._measure(FakeNode(), FakeRclpy, {"/fast": 1000.0}, {"/fast": ["t"]}, 0.3)
+    assert time.monotonic() - began >= 0.3
+    assert 0 < rates["/fast"] < 1000.0
