@@ -151,6 +151,7 @@ def run_fanout(args: argparse.Namespace, raw: dict[str, Any], work: Path, playbo
                times: dict[str, dict[int, list[Timed]]]) -> None:
     """Fills `times` as it goes, so what was measured survives a later failure."""
     times.update({"status": {}, "rosdeploy_noop": {}, "ansible_noop": {}})
+    quiet_sim_fleet()
     setup, farm = fan.prepare(work / "fanout", raw, args.sizes, args.fanout_port)
     try:
         farm.start()
@@ -173,6 +174,16 @@ def run_fanout(args: argparse.Namespace, raw: dict[str, Any], work: Path, playbo
             log(f"  N={n}: Ansible no-op {_secs(times['ansible_noop'][n])}")
     finally:
         fan.teardown(farm)
+
+
+def quiet_sim_fleet() -> None:
+    """The fan-out targets are not the sim robots: stop the demo nodes the fleet part left
+    running on them (12 ROS processes), so they do not share the 2 cores with the targets."""
+    from rosdeploy import sim
+
+    if sim.status().running:
+        sim.reset()
+        log("sim robots reset: no demo nodes running during the fan-out part")
 
 
 def measure(series: dict[int, list[Timed]], n: int, command: Callable[[], Timed]) -> None:

@@ -194,7 +194,11 @@ case $mode in
       compose -p "$project" -f compose.yml up -d --remove-orphans --no-deps "$service" 2>&1 || exit $?
     done ;;
   together)
-    # Create everything, then start it all at once, as dockerd does when the robot boots.
+    # Stop what runs all at once (compose stops one service after another; `docker stop`
+    # keeps each container's own stop signal and grace period), create everything, then
+    # start it all at once, as dockerd does when the robot boots.
+    running=$(docker ps -q --filter "label=com.docker.compose.project=$project")
+    [ -z "$running" ] || docker stop $running >/dev/null || exit $?
     compose -p "$project" -f compose.yml up --no-start --remove-orphans 2>&1 || exit $?
     ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project" --filter status=created --filter status=exited)
     [ -z "$ids" ] || docker start $ids >/dev/null ;;

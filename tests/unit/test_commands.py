@@ -148,7 +148,7 @@ def fake_docker(tmp_path: Path) -> tuple[dict, Path]:
     bin_dir, log = tmp_path / "bin", tmp_path / "docker.log"
     bin_dir.mkdir()
     (bin_dir / "docker").write_text('#!/bin/sh\necho "$*" >> "$DOCKER_LOG"\n'
-                                    'case "$1 $2" in "ps -aq") echo c1; echo c2;; esac\n')
+                                    'case "$1 $2" in "ps -aq"|"ps -q") echo c1; echo c2;; esac\n')
     (bin_dir / "docker").chmod(0o755)
     env = {"HOME": str(tmp_path), "PATH": f"{bin_dir}:{os.environ['PATH']}", "DOCKER_LOG": str(log)}
     (tmp_path / "r/demo/releases/1.0.0-x").mkdir(parents=True)
@@ -163,7 +163,8 @@ def fake_docker(tmp_path: Path) -> tuple[dict, Path]:
       "compose -p demo -f compose.yml up -d --remove-orphans --no-deps perception"]),
     # create all, then one `docker start` of every created or stopped container
     ({"together": True},
-     ["compose -p demo -f compose.yml up --no-start --remove-orphans",
+     ["ps -q --filter label=com.docker.compose.project=demo", "stop c1 c2",
+      "compose -p demo -f compose.yml up --no-start --remove-orphans",
       "ps -aq --filter label=com.docker.compose.project=demo --filter status=created --filter status=exited",
       "start c1 c2"]),
 ])
