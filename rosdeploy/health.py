@@ -70,8 +70,9 @@ def broken(containers: tuple[Container, ...], expected: tuple[str, ...],
             continue
         if c.status in ("exited", "dead", "restarting"):
             return c.service, f"container {c.name} is {c.status}"
-        if c.restarts > baseline.get(c.name, c.restarts):
-            return c.service, f"container {c.name} restarted {c.restarts - baseline[c.name]} time(s)"
+        since = baseline.get(c.id or c.name, c.restarts)
+        if c.restarts > since:
+            return c.service, f"container {c.name} restarted {c.restarts - since} time(s)"
         if c.health == "unhealthy":
             return c.service, f"container {c.name} health check reports unhealthy"
     return None
@@ -103,8 +104,8 @@ class Poller:
         if not {c.service for c in containers} >= set(expected) and self.names:
             containers = read_containers(self.t, self.spec.project)   # a service is new or gone
         self.names = tuple(c.name for c in containers)
-        for c in containers:
-            self.baseline.setdefault(c.name, c.restarts)
+        for c in containers:   # by id: a recreated container keeps its name, not its count
+            self.baseline.setdefault(c.id or c.name, c.restarts)
         failure = broken(containers, expected, self.baseline)
         if failure is None:
             containers = tuple(self._checked(c, expected) for c in containers)
@@ -117,7 +118,7 @@ class Poller:
         if key not in self.passed:
             now = time.monotonic()
             command = commands.health_test(c.name, c.test, min(c.test_timeout, 10.0))
-            if command is None or now - self.tested.get(key, -OWN_TEST_EVERY) < OWN_TEST_EVERY:
+            if command is None or (key in self.tested and now - self.tested[key] < OWN_TEST_EVERY):
                 return c
             self.tested[key] = now
             if not self.t.run(command).ok:

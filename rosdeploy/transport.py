@@ -66,15 +66,25 @@ def known_hosts_for(host: Host, options: SSHOptions) -> list[str]:
     return files
 
 
+FABRIC_OVERRIDES = {"load_ssh_configs": True}
+
+
 @functools.lru_cache(maxsize=8)
-def fabric_config(options: SSHOptions) -> Config:
-    """One fabric Config per run (SSHOptions is frozen, so it keys the cache): ssh_config is
-    parsed once, not once per robot."""
+def parsed_ssh_config(options: SSHOptions) -> paramiko.SSHConfig:
+    """ssh_config parsed once per run (SSHOptions is frozen, so it keys the cache), not once
+    per robot; SSHConfig lookups only read it, so robot threads share it."""
     path = os.path.expanduser(options.ssh_config) if options.ssh_config else None
     if path and not os.path.exists(path):
         raise ConnectError("ssh", f"ssh config {path} does not exist: fix `ssh.config` in the fleet file")
-    overrides = {"load_ssh_configs": True}
-    return Config(overrides=overrides, runtime_ssh_path=path) if path else Config(overrides=overrides)
+    config = Config(overrides=FABRIC_OVERRIDES, runtime_ssh_path=path) if path else Config(overrides=FABRIC_OVERRIDES)
+    return config.base_ssh_config
+
+
+def fabric_config(options: SSHOptions) -> Config:
+    """A Config of its own for each connection: fabric merges a Config in place while it
+    connects, and robot threads sharing one saw it empty ("no config key found for
+    'authentication'", at 100 robots)."""
+    return Config(overrides=dict(FABRIC_OVERRIDES), ssh_config=parsed_ssh_config(options))
 
 
 class SSHTransport:

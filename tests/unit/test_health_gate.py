@@ -136,3 +136,12 @@ def test_settled_judges_starting_containers_like_the_gate_and_costs_nothing_othe
                                       quick)] == ["healthy", "starting"]
     calm = Scripted([])   # would fail on any call
     assert settled(calm, SPEC, quick[:1]) == quick[:1]
+
+
+def test_a_recreated_container_is_judged_by_its_own_restart_count() -> None:
+    old = {**c("driver", restarts=3), "id": "old"}
+    new = {**c("driver", restarts=0), "id": "new"}     # recreated: same name, its own count
+    waiting = c("perception", health="starting")     # keeps the gate polling
+    t = Scripted([[old, waiting], [new, waiting], [{**new, "restarts": 1}, waiting]])
+    verdict = wait_healthy(t, SPEC)
+    assert not verdict.ok and verdict.service == "driver" and "restarted" in verdict.reason
