@@ -27,7 +27,8 @@ from rosdeploy.health import (Poller, Verdict, diagnose, expected_services, sett
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
-from rosdeploy.robot import RobotState, parse_state, previous_release, release_for_version, unhealthy_services
+from rosdeploy.robot import (RobotState, parse_state, passed_gate, previous_release, release_for_version,
+                            unhealthy_services)
 from rosdeploy.transport import SSHOptions, Transport, connect
 
 Progress = Callable[[str, str], None]   # (robot, what is happening)
@@ -360,8 +361,7 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     if holder is not None:
         return run.result(LOCKED, reason=f"locked by another run: {holder} (use --break-lock if it is stale)",
                           **base)
-    passed_before = any(e.get("release") == target and e.get("result") == "active" for e in state.history)
-    verdict = run.start(target, state.flavor, together=passed_before)
+    verdict = run.start(target, state.flavor, together=passed_gate(state, target))
     run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
                           "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback"})
     base["running_release"] = target

@@ -145,6 +145,11 @@ def previous_release(state: RobotState) -> str | None:
     return None
 
 
+def passed_gate(state: RobotState, release: str) -> bool:
+    """Was this release ever activated on the robot, i.e. did it pass the whole health gate?"""
+    return any(e.get("release") == release and e.get("result") == "active" for e in state.history)
+
+
 def release_for_version(state: RobotState, version: str) -> str | None:
     """Newest kept release of a version (release ids are `<version>-<digest12>`)."""
     matches = [r for r in state.releases if r.rsplit("-", 1)[0] == version]

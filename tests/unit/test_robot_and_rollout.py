@@ -6,7 +6,8 @@ import json
 import pytest
 
 from rosdeploy.model import Host, RolloutPolicy
-from rosdeploy.robot import Container, parse_state, previous_release, release_for_version, unhealthy_services
+from rosdeploy.robot import (Container, parse_state, passed_gate, previous_release, release_for_version,
+                            unhealthy_services)
 from rosdeploy.rollout import allowed_failures, plan_waves, wave_sizes
 
 
@@ -65,6 +66,12 @@ def test_previous_release_skips_releases_already_rolled_back_from() -> None:
 def test_previous_release_needs_the_release_on_disk() -> None:
     st = parse_state(state_text(history=[active("0.9.0-zzz"), active("1.1.0-bbb")], releases=("1.1.0-bbb",)))
     assert previous_release(st) is None
+
+
+def test_only_a_release_activated_before_passed_the_gate() -> None:
+    failed = {"release": "1.2.0-bad", "result": "failed"}
+    st = parse_state(state_text(history=[active("1.0.0-aaa"), failed], releases=("1.0.0-aaa", "1.2.0-bad")))
+    assert passed_gate(st, "1.0.0-aaa") and not passed_gate(st, "1.2.0-bad")
 
 
 def test_release_for_version_prefers_the_last_activated() -> None:
