@@ -22,8 +22,7 @@ from typing import Callable, Iterator
 
 from rosdeploy import __version__, commands
 from rosdeploy.errors import CommandFailed, ConnectError, RemoteError
-from rosdeploy.health import (Poller, Verdict, diagnose, expected_services, settled, start_levels,
-                              wait_healthy, wait_ready)
+from rosdeploy.health import Poller, Verdict, diagnose, expected_services, settled, start_levels, wait_healthy
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
@@ -151,7 +150,8 @@ class RobotRun:
         with self.step(f"start {release}"):
             for i, level in enumerate(levels):
                 if i:
-                    ready = wait_ready(poller, sum(levels[:i], ()), deadline, began)
+                    ready = wait_healthy(self.t, self.spec, since=began, deadline=deadline, checks_only=True,
+                                         poller=poller, services=sum(levels[:i], ()))
                     if not ready.ok:
                         return ready
                 names = level if len(levels) > 1 else ()   # one level: compose's own `up`
@@ -161,7 +161,7 @@ class RobotRun:
                     lines = (out.stdout + out.stderr).strip().splitlines()
                     return diagnose(self.t, self.spec, "compose up failed: " + (lines[-1] if lines else "no output"))
         with self.step("health"):
-            return wait_healthy(self.t, self.spec, since=began, deadline=deadline, known_good=together,
+            return wait_healthy(self.t, self.spec, since=began, deadline=deadline, checks_only=together,
                                 poller=poller)
 
     def history(self, entry: dict) -> None:

@@ -2,8 +2,8 @@
 
 Containers first (cheap, one `docker inspect` per poll): every expected service
 running, healthy where the image or compose declares a check (Docker's verdict, or
-the check itself run by rosdeploy while Docker still says `starting`), no restarts. Then, once, the ROS graph: rosdeploy's probe runs inside a
-container of the release and checks each expected topic and its rate. The
+the check itself run by rosdeploy while Docker still says `starting`), no restarts.
+Then, once, the ROS graph: rosdeploy's probe runs inside a container of the release and checks each expected topic and its rate. The
 probe costs ~0.4 CPU-s, so it runs once per gate (plus one retry), never in a
 polling loop.
 """
@@ -137,27 +137,10 @@ def settled(t: Transport, spec: FleetSpec, containers: tuple[Container, ...]) ->
     return Poller(t, spec).poll(expected)[0]
 
 
-def wait_ready(poller: Poller, services: tuple[str, ...], deadline: float, since: float) -> Verdict:
-    """Until `services` run and pass their health checks (what `service_healthy` means),
-    so the next start level can go. No stable window, no ROS probe: the final gate does those."""
-    spec = poller.spec
-    while True:
-        containers, failure = poller.poll(services)
-        if failure:
-            return Verdict(False, failure[1], failure[0], containers=containers)
-        waiting = unhealthy_services(containers, services)
-        if not waiting:
-            return Verdict(True, "ready", containers=containers)
-        if time.monotonic() >= deadline:
-            service, why = next(iter(waiting.items()))
-            return Verdict(False, f"{service}: {why} after {spec.health.timeout:g}s (health.timeout)",
-                           service, containers=containers)
-        time.sleep(poll_interval(spec.health, since))
-
-
 def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = None,
                  since: float | None = None, deadline: float | None = None,
-                 known_good: bool = False, poller: Poller | None = None) -> Verdict:
+                 checks_only: bool = False, poller: Poller | None = None,
+                 services: tuple[str, ...] | None = None) -> Verdict:
     """Poll until healthy, broken, or health.timeout. Not interruptible on purpose: once a
     release was started, the gate decides whether it stays or is rolled back.
 
@@ -166,14 +149,16 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
     with waiting for health, so its discovery wait overlaps the rest. It runs at most
     twice per gate (a second time only if the first ran before the services were healthy).
 
-    `known_good`: going back to a release that passed this whole gate before on this
-    robot. Rolling back is the brake, so it waits only for running containers that pass
-    their own health checks: no stable window, no ROS probe (those guard new releases).
+    `checks_only`: wait only for running containers that pass their own health checks,
+    with no stable window and no ROS probe (those guard a new release as a whole). For a
+    start level before the next one (what `service_healthy` means), and for the brake:
+    going back to a release that passed the whole gate before on this robot.
+    `services`: only these (default: every expected service).
     """
     policy = policy or spec.health
-    if known_good:
+    if checks_only:
         policy = replace(policy, stable=0.0)
-    expected = expected_services(spec)
+    expected = services if services is not None else expected_services(spec)
     start = time.monotonic() if since is None else since
     deadline = start + policy.timeout if deadline is None else deadline
     poller = poller or Poller(t, spec)
@@ -185,11 +170,11 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
             if failure:
                 return Verdict(False, failure[1], failure[0], containers=containers)
             waiting = unhealthy_services(containers, expected)
-            if probe is None and not known_good and _probe_can_start(spec, containers):
+            if probe is None and not checks_only and _probe_can_start(spec, containers):
                 early = bool(waiting)
                 probe = pool.submit(_probe_graph, t, spec, containers, policy, deadline)
             if not waiting and time.monotonic() - start >= policy.stable:
-                if known_good:
+                if checks_only:
                     return Verdict(True, "running and passing health checks", containers=containers)
                 verdict = probe.result() if probe else _probe_graph(t, spec, containers, policy, deadline)
                 if verdict.ok or not early or time.monotonic() + policy.interval >= deadline:

@@ -4,7 +4,8 @@ This file is not imported by rosdeploy: its source is sent to the robot and run
 with `python3 -c SOURCE SPEC_JSON` in a container that has rclpy, so it sees
 the robot's ROS graph on the release's own ROS_DOMAIN_ID and RMW. It must stay
 self-contained (stdlib + rclpy) and cheap: one participant, one discovery
-wait, one measuring window (cut short once the counts prove the rates), then exit. Prints one JSON line; exit 0 = healthy.
+wait, one measuring window (cut short once the counts prove the rates), then
+exit. Prints one JSON line; exit 0 = healthy.
 """
 import importlib
 import json

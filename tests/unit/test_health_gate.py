@@ -112,7 +112,7 @@ def test_docker_unhealthy_wins_over_a_passing_own_check() -> None:
 def test_a_known_good_release_needs_no_probe_and_no_stable_window() -> None:
     spec = replace(SPEC, health=replace(SPEC.health, stable=60.0, timeout=5.0))
     t = Scripted([[c("driver"), c("perception")]])
-    verdict = wait_healthy(t, spec, known_good=True)
+    verdict = wait_healthy(t, spec, checks_only=True)
     assert verdict.ok and t.probes == 0
     assert not wait_healthy(Scripted([[c("driver"), c("perception")]]), replace(spec, health=replace(
         spec.health, timeout=0.2))).ok      # a new release still waits out the stable window
@@ -145,3 +145,9 @@ def test_a_recreated_container_is_judged_by_its_own_restart_count() -> None:
     t = Scripted([[old, waiting], [new, waiting], [{**new, "restarts": 1}, waiting]])
     verdict = wait_healthy(t, SPEC)
     assert not verdict.ok and verdict.service == "driver" and "restarted" in verdict.reason
+
+
+def test_a_start_level_waits_only_for_its_own_services() -> None:
+    t = Scripted([[c("driver", health="starting")], [c("driver")]])   # perception not created yet
+    verdict = wait_healthy(t, SPEC, checks_only=True, services=("driver",))
+    assert verdict.ok and t.probes == 0
