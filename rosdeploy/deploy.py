@@ -105,8 +105,8 @@ class RobotRun:
     def wants_gpu(self) -> bool:
         return self.host.gpu and any(s.gpu for s in self.spec.services)
 
-    def read_state(self, full: bool = True) -> RobotState:
-        with self.step("state" if full else "check"):
+    def read_state(self, full: bool = True, step: str | None = None) -> RobotState:
+        with self.step(step or ("state" if full else "check")):
             out = self.t.run(commands.state(self.root, self.spec.project, self.devices(),
                                             self.compose_pref, self.wants_gpu(), full=full))
         return parse_state(out.stdout)
@@ -146,7 +146,7 @@ class RobotRun:
         levels = ((),) if together else start_levels(self.spec)
         began = time.monotonic()
         deadline = began + self.spec.health.timeout
-        poller = Poller(self.t, self.spec)
+        poller = Poller(self.t, self.spec, watch=True)
         with self.step(f"start {release}"):
             for i, level in enumerate(levels):
                 if i:
@@ -344,8 +344,19 @@ def rollback_host(ctx: RunContext, host: Host, to_version: str | None = None,
         run.close()
 
 
-def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> HostResult:
+def rollback_state(run: RobotRun) -> tuple[RobotState, str | None]:
+    """The state a rollback needs and the compose flavour to switch with. Quick when the
+    running containers' labels tell the flavour: an emergency skips the preflight facts."""
+    state = run.read_state(full=False, step="state")
+    flavor = state.running_flavor
+    if flavor is not None and run.compose_pref in ("auto", flavor):
+        return state, flavor
     state = run.read_state()
+    return state, state.flavor
+
+
+def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> HostResult:
+    state, flavor = rollback_state(run)
     if to_release:
         target = to_release if to_release in state.releases else None
     else:
@@ -355,13 +366,13 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
         kept = ", ".join(state.releases) or "none"
         what = f"no kept release of version {to_version}" if to_version else "no previous release"
         return run.result(FAILED, reason=f"{what} on the robot (kept: {kept})", **base)
-    if state.flavor is None:
+    if flavor is None:
         return run.result(FAILED, reason="no docker compose on the robot", **base)
     holder = run.lock()
     if holder is not None:
         return run.result(LOCKED, reason=f"locked by another run: {holder} (use --break-lock if it is stale)",
                           **base)
-    verdict = run.start(target, state.flavor, together=passed_gate(state, target))
+    verdict = run.start(target, flavor, together=passed_gate(state, target))
     run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
                           "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback"})
     base["running_release"] = target

@@ -10,11 +10,12 @@ polling loop.
 from __future__ import annotations
 
 import json
+import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Mapping
+from typing import Callable, Mapping
 
 from rosdeploy import commands
 from rosdeploy.model import FleetSpec, HealthPolicy
@@ -22,7 +23,10 @@ from rosdeploy.robot import Container, unhealthy_services
 from rosdeploy.transport import Transport
 
 FAST_POLL = 0.5       # s between polls while services usually come up
-OWN_TEST_EVERY = 1.0  # s between runs of one container's own health test
+WATCHED_POLL = 1.0    # s between polls while every service waited for is being watched
+OWN_TEST_EVERY = 1.0  # s between one-shot runs of a container's own health test
+WATCH_EVERY = 0.25    # s between tries of a watched test (inside the container)
+WATCH_WINDOW = 10.0   # s one watch loops before it ends and the next poll starts another
 FAST_WINDOW = 15.0   # s after a start during which the gate polls fast
 PROBE_SOURCE = (Path(__file__).parent / "ros_probe.py").read_text(encoding="utf-8")
 
@@ -88,16 +92,33 @@ class Poller:
     so the gate takes it instead of waiting; failures are left to Docker's own retries.
 
     Polls are what the gate costs the robot (each docker CLI start is ~40 ms of CPU, a
-    `docker exec` ~95 ms, on the simulated robots): known containers are inspected by
-    name (one CLI start), and a container's own test runs at most every OWN_TEST_EVERY.
+    `docker exec` ~70 ms, on the simulated robots): known containers are inspected by
+    name (one CLI start). `watch`: each starting container's test runs in a loop inside
+    it (one exec per WATCH_WINDOW, see commands.health_watch), in the background; else
+    (a one-shot look, or an image without /bin/sh) one exec per OWN_TEST_EVERY.
     """
 
-    def __init__(self, t: Transport, spec: FleetSpec) -> None:
-        self.t, self.spec = t, spec
+    def __init__(self, t: Transport, spec: FleetSpec, watch: bool = False) -> None:
+        self.t, self.spec, self.watch = t, spec, watch
         self.baseline: dict[str, int] = {}
         self.names: tuple[str, ...] = ()
         self.passed: set[str] = set()          # container ids whose own test passed
         self.tested: dict[str, float] = {}     # container id -> when its own test last ran
+        self.watches: dict[str, Future[int]] = {}
+        self.unwatchable: set[str] = set()     # container ids tested one exec at a time
+        self.woken = threading.Event()         # a watch ended: poll now, not at the next tick
+
+    def watching(self, containers: tuple[Container, ...], waiting: Mapping[str, str]) -> bool:
+        """Is every service still waited for a container whose watch is running?"""
+        by_service = {c.service: c for c in containers}
+        running = {k for k, f in self.watches.items() if not f.done()}
+        return bool(waiting) and all(s in by_service and (by_service[s].id or by_service[s].name) in running
+                                     for s in waiting)
+
+    def nap(self, seconds: float) -> None:
+        """Sleep until the next poll, or until a watch ends (its verdict is news)."""
+        self.woken.wait(seconds)
+        self.woken.clear()
 
     def poll(self, expected: tuple[str, ...]) -> tuple[tuple[Container, ...], tuple[str, str] | None]:
         containers = read_containers(self.t, self.spec.project, self.names)
@@ -115,16 +136,54 @@ class Poller:
         if c.health != "starting" or c.status != "running" or c.service not in expected:
             return c
         key = c.id or c.name
-        if key not in self.passed:
-            now = time.monotonic()
-            command = commands.health_test(c.name, c.test, min(c.test_timeout, 10.0))
-            if command is None or (key in self.tested and now - self.tested[key] < OWN_TEST_EVERY):
-                return c
-            self.tested[key] = now
-            if not self.t.run(command).ok:
-                return c
-            self.passed.add(key)
+        if key not in self.passed and not self._passes(c, key):
+            return c
+        self.passed.add(key)
         return replace(c, health="healthy")
+
+    def _passes(self, c: Container, key: str) -> bool:
+        if self.watch and key not in self.unwatchable:
+            return self._watched(c, key)
+        now = time.monotonic()
+        command = commands.health_test(c.name, c.test, min(c.test_timeout, 10.0))
+        if command is None or (key in self.tested and now - self.tested[key] < OWN_TEST_EVERY):
+            return False
+        self.tested[key] = now
+        return self.t.run(command).ok
+
+    def _watched(self, c: Container, key: str) -> bool:
+        running = self.watches.get(key)
+        if running is not None and not running.done():
+            return False
+        code = _exit_code(running) if running is not None else 3
+        if code == 0:
+            return True
+        if code != 3:                        # cannot loop in this image: one exec per poll
+            self.unwatchable.add(key)
+            return self._passes(c, key)
+        command = commands.health_watch(c.name, c.test, min(c.test_timeout, 10.0), WATCH_WINDOW, WATCH_EVERY)
+        if command is not None:
+            self.watches[key] = _in_background(lambda: self.t.run(command).exited, self.woken)
+        return False
+
+
+def _in_background(work: Callable[[], int], done: threading.Event) -> Future[int]:
+    """A daemon thread: a watch still looping when the run ends must not hold up the exit
+    (it stops by itself within WATCH_WINDOW). Sets `done` when it ends."""
+    future: Future[int] = Future()
+
+    def target() -> None:
+        try:
+            future.set_result(work())
+        except Exception as exc:     # connection lost: the poll reports it, this falls back
+            future.set_exception(exc)
+        done.set()
+    threading.Thread(target=target, name="health-watch", daemon=True).start()
+    return future
+
+
+def _exit_code(future: Future[int]) -> int:
+    return -1 if future.exception() is not None else future.result()
 
 
 def settled(t: Transport, spec: FleetSpec, containers: tuple[Container, ...]) -> tuple[Container, ...]:
@@ -161,7 +220,7 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
     expected = services if services is not None else expected_services(spec)
     start = time.monotonic() if since is None else since
     deadline = start + policy.timeout if deadline is None else deadline
-    poller = poller or Poller(t, spec)
+    poller = poller or Poller(t, spec, watch=True)
     probe: Future[Verdict] | None = None
     early = True   # the running probe started before every service was healthy
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ros-probe") as pool:
@@ -185,13 +244,17 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
                 service, why = next(iter(waiting.items()), ("", "not stable"))
                 return Verdict(False, f"{service}: {why} after {policy.timeout:g}s (health.timeout)",
                                service or None, containers=containers)
-            time.sleep(poll_interval(policy, start))
+            poller.nap(poll_interval(policy, start, watched=poller.watching(containers, waiting)))
 
 
-def poll_interval(policy: HealthPolicy, since: float) -> float:
+def poll_interval(policy: HealthPolicy, since: float, watched: bool = False) -> float:
     """Poll fast while services usually come up (a poll is one `docker inspect`), then
-    every `health.interval`, so a slow start does not keep the robot busy."""
-    return min(policy.interval, FAST_POLL) if time.monotonic() - since < FAST_WINDOW else policy.interval
+    every `health.interval`, so a slow start does not keep the robot busy. `watched`:
+    everything still waited for is a starting container whose watch wakes the gate when
+    it passes or the container stops, so the poll only needs to catch Docker's verdicts."""
+    if time.monotonic() - since >= FAST_WINDOW:
+        return policy.interval
+    return min(policy.interval, WATCHED_POLL if watched else FAST_POLL)
 
 
 def _probe_can_start(spec: FleetSpec, containers: tuple[Container, ...]) -> bool:

@@ -76,6 +76,11 @@ def _int_at_least(low: int) -> Any:
 TUNABLES: dict[str, tuple[Any, Any, str]] = {
     "dds_lease_duration": (10, _int_at_least(1), "whole seconds"),
     "dds_lease_announcement": (3, _int_at_least(1), "whole seconds"),
+    # Fast DDS sends 5 announcements 100 ms apart, then one per lease announcement (3 s).
+    # A participant that starts over 0.5 s after its peer (seen on a loaded robot, where
+    # the containers of a release start together) then waits up to 3 s to discover it.
+    "dds_initial_announcements": (15, _int_at_least(1), "a number of announcements"),
+    "dds_initial_announcement_period_ms": (200, _int_at_least(1), "whole milliseconds"),
     "dds_socket_buffer": ("10MB", lambda v: bool(re.fullmatch(r"\d+(\.\d+)?\s*([kKMG]i?)?B?", str(v))),
                           "a size like 10MB or 8MiB"),
     "logrotate_size": ("50M", lambda v: bool(re.fullmatch(r"\d+[kMG]?", str(v))), "a size like 50M"),

@@ -62,13 +62,17 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
 
 # ----------------------------------------------------------------- loading
 
-def load(args: argparse.Namespace, out: Output):
-    """Fleet file + inventory + targets (+ releases), validated: input errors stop here, before any robot."""
+def load(args: argparse.Namespace, out: Output, render: bool = True):
+    """Fleet file + inventory + targets (+ releases), validated: input errors stop here, before any robot.
+    `render=False` (rollback): the releases kept on the robots are what runs, so neither the time
+    to render nor a template error in what would be deployed next may hold up going back."""
     project = load_project(args.fleet, inventory=args.inventory, version=getattr(args, "release_version", None),
                            vault_password_file=args.vault_password_file,
                            prompt=getpass.getpass if out.interactive else None)
     hosts = project.targets(args.limit)
     out.mask(project.secret_values)
+    if not render:
+        return project, hosts, {}
     releases, problems = prepare(project, hosts)
     problems = gate(problems)
     errors = [p for p in problems if p.severity == "error"]
@@ -125,7 +129,7 @@ def _policy(policy: RolloutPolicy, args: argparse.Namespace) -> RolloutPolicy:
 
 
 def cmd_rollback(args: argparse.Namespace, out: Output) -> int:
-    project, hosts, _ = load(args, out)
+    project, hosts, _ = load(args, out, render=False)
     target = args.to or "their previous release"
     if not _confirmed(args, out, f"Roll back {len(hosts)} robot(s) to {target}?"):
         return EXIT_INPUT

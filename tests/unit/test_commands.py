@@ -148,7 +148,8 @@ def fake_docker(tmp_path: Path) -> tuple[dict, Path]:
     bin_dir, log = tmp_path / "bin", tmp_path / "docker.log"
     bin_dir.mkdir()
     (bin_dir / "docker").write_text('#!/bin/sh\necho "$*" >> "$DOCKER_LOG"\n'
-                                    'case "$1 $2" in "ps -aq"|"ps -q") echo c1; echo c2;; esac\n')
+                                    'case "$1 $2" in "ps -aq"|"ps -q") echo c1; echo c2;; esac\n'
+                                    '[ "$*" != "$DOCKER_FAIL" ] || exit 5\n')
     (bin_dir / "docker").chmod(0o755)
     env = {"HOME": str(tmp_path), "PATH": f"{bin_dir}:{os.environ['PATH']}", "DOCKER_LOG": str(log)}
     (tmp_path / "r/demo/releases/1.0.0-x").mkdir(parents=True)
@@ -161,19 +162,29 @@ def fake_docker(tmp_path: Path) -> tuple[dict, Path]:
     ({"services": ("driver", "perception")},
      ["compose -p demo -f compose.yml up -d --remove-orphans --no-deps driver",
       "compose -p demo -f compose.yml up -d --remove-orphans --no-deps perception"]),
-    # create all, then one `docker start` of every created or stopped container
+    # create all, then a `docker start` of every created or stopped container, all at once
     ({"together": True},
      ["ps -q --filter label=com.docker.compose.project=demo", "stop c1 c2",
       "compose -p demo -f compose.yml up --no-start --remove-orphans",
       "ps -aq --filter label=com.docker.compose.project=demo --filter status=created --filter status=exited",
-      "start c1 c2"]),
+      "start c1", "start c2"]),
 ])
 def test_up_modes_run_these_docker_calls(tmp_path: Path, kwargs: dict, expected: list[str]) -> None:
     env, log = fake_docker(tmp_path)
     cmd = commands.up("~/r", "demo", "1.0.0-x", "v2", **kwargs)
     out = subprocess.run(["sh", "-c", cmd.wire()], capture_output=True, env=env)
     assert out.returncode == 0, out.stderr
-    assert log.read_text().splitlines() == expected
+    calls = log.read_text().splitlines()
+    parallel = [c for c in calls if c.startswith("start ")]    # in any order
+    assert [c for c in calls if c not in parallel] + sorted(parallel) == expected
+
+
+def test_a_container_that_fails_to_start_fails_the_together_start(tmp_path: Path) -> None:
+    env, log = fake_docker(tmp_path)
+    cmd = commands.up("~/r", "demo", "1.0.0-x", "v2", together=True)
+    out = subprocess.run(["sh", "-c", cmd.wire()], capture_output=True, env={**env, "DOCKER_FAIL": "start c2"})
+    assert out.returncode == 5
+    assert "start c1" in log.read_text().splitlines()     # the others still started
 
 
 def test_up_of_a_missing_release_changes_nothing(tmp_path: Path) -> None:
@@ -193,3 +204,81 @@ def test_up_of_a_missing_release_changes_nothing(tmp_path: Path) -> None:
 def test_health_test_runs_the_containers_own_check(test: tuple, argv: tuple | None) -> None:
     cmd = commands.health_test("c1", test, 3.0)
     assert (cmd.argv if cmd else None) == argv
+
+
+def _watch_in_container(tmp_path, test: tuple, window: float = 0.3, every: float = 0.05) -> int:
+    """health_watch's loop run by a real sh, as `docker exec` would run it in the container."""
+    cmd = commands.health_watch("c1", test, 3.0, window, every)
+    assert cmd is not None and cmd.argv[:4] == ("docker", "exec", "c1", "/bin/sh")
+    return subprocess.run(cmd.argv[3:], cwd=tmp_path, capture_output=True, timeout=10).returncode
+
+
+def test_health_watch_loops_until_the_check_passes(tmp_path) -> None:
+    # passes on the third try: each try appends a line, the check wants three
+    check = "echo x >> tries; [ $(wc -l < tries) -ge 3 ]"
+    assert _watch_in_container(tmp_path, ("CMD-SHELL", check)) == 0
+    assert (tmp_path / "tries").read_text().count("x") == 3
+
+
+def test_health_watch_gives_up_with_3_after_its_tries(tmp_path) -> None:
+    assert _watch_in_container(tmp_path, ("CMD", "sh", "-c", "echo x >> tries; exit 1")) == 3
+    assert (tmp_path / "tries").read_text().count("x") == 6      # window 0.3 s / every 0.05 s
+
+
+def test_health_watch_passes_cmd_arguments_as_they_are(tmp_path) -> None:
+    assert _watch_in_container(tmp_path, ("CMD", "test", "a b", "=", "a b")) == 0
+    assert commands.health_watch("c1", ("NONE",), 3.0, 1.0, 0.5) is None
+
+
+def test_health_watch_spaces_a_slow_check_by_its_own_duration(tmp_path) -> None:
+    # each try takes ~1 s: with window 2 s every 0.5 s (4 tries) the 1 s try uses up
+    # 1 + 2*1*2 = 5 tries' worth, so it runs once, not 4 times back to back
+    check = "echo x >> tries; sleep 1.05; exit 1"
+    assert _watch_in_container(tmp_path, ("CMD-SHELL", check), window=2.0, every=0.5) == 3
+    assert (tmp_path / "tries").read_text().count("x") == 1
+
+
+ENGINE_API_LIST = [{"Id": "abc", "Names": ["/demo-driver-1"], "Image": "r:5000/demo/driver:1.0.0",
+                    "State": "running", "Status": "Up 3 minutes (healthy)",
+                    "Labels": {"com.docker.compose.service": "driver", "com.docker.compose.version": "2.40.3",
+                               "com.docker.compose.project.working_dir": "/h/r/demo/releases/1.0.0-x"}}]
+PS_LINE = {"name": "demo-driver-1", "service": "driver", "image": "r:5000/demo/driver:1.0.0", "status": "running",
+           "ps_status": "Up 3 minutes (healthy)", "workdir": "/h/r/demo/releases/1.0.0-x", "compose": "2.40.3"}
+
+
+def test_the_engine_api_list_parses_to_what_docker_ps_gives() -> None:
+    assert commands.parse_containers(json.dumps(ENGINE_API_LIST)) == commands.parse_containers(json.dumps(PS_LINE))
+
+
+def _state_with(tmp_path: Path, docker_host: str | None, curl_exit: int = 0) -> tuple[list[str], tuple[dict, ...]]:
+    """The quick state script with a fake curl and docker on PATH; (tools called, containers read)."""
+    import socket
+    import tempfile
+    tmp_path.mkdir(exist_ok=True)
+    env, log = fake_docker(tmp_path)
+    sock_path = Path(tempfile.mkdtemp(prefix="rd")) / "docker.sock"   # AF_UNIX paths are short
+    server = socket.socket(socket.AF_UNIX)
+    server.bind(str(sock_path))
+    (tmp_path / "bin" / "curl").write_text(
+        f"#!/bin/sh\necho \"curl $*\" >> \"$DOCKER_LOG\"\n[ {curl_exit} = 0 ] || exit {curl_exit}\n"
+        f"echo '{json.dumps(ENGINE_API_LIST)}'\n")
+    (tmp_path / "bin" / "curl").chmod(0o755)
+    if docker_host is not None:
+        env["DOCKER_HOST"] = docker_host.replace("SOCK", str(sock_path))
+    try:
+        out = subprocess.run(["sh", "-c", commands.state("~/r", "demo", full=False).wire()],
+                             capture_output=True, env=env, text=True)
+    finally:
+        server.close()
+    calls = [line.split()[0] if line.startswith("curl") else "docker" for line in log.read_text().splitlines()]
+    return calls, commands.parse_containers(commands.parse_sections(out.stdout).get("containers", ""))
+
+
+def test_state_reads_containers_through_the_engine_api_when_the_cli_would_use_the_socket(tmp_path: Path) -> None:
+    calls, containers = _state_with(tmp_path, "unix://SOCK")
+    assert calls == ["curl"] and containers[0]["service"] == "driver"
+
+
+def test_state_falls_back_to_docker_ps(tmp_path: Path) -> None:
+    assert _state_with(tmp_path / "a", "unix://SOCK", curl_exit=7)[0] == ["curl", "docker"]   # curl failed
+    assert _state_with(tmp_path / "b", "tcp://10.0.0.2:2376")[0] == ["docker"]              # not a local socket

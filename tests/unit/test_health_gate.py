@@ -25,9 +25,11 @@ def c(service: str, status: str = "running", health: str | None = "healthy", res
 class Scripted:
     """Answers `containers` with the next scripted poll (the last one repeats) and the probe with `probe`."""
 
-    def __init__(self, polls: list[list[dict]], probe: dict | None = None, tests_pass: bool = False) -> None:
+    def __init__(self, polls: list[list[dict]], probe: dict | None = None, tests_pass: bool = False,
+                 watch_exit: int | None = None) -> None:
         self.polls, self.probe, self.probes = polls, probe, 0
-        self.tests_pass, self.tests = tests_pass, []
+        self.tests_pass, self.tests, self.watches = tests_pass, [], []
+        self.watch_exit = watch_exit     # None: what a loop over the test would give
         self.lock = threading.Lock()
 
     def run(self, command: Command) -> Result:
@@ -35,6 +37,10 @@ class Scripted:
             if command.label.startswith("health-test"):
                 self.tests.append(command.argv)
                 return Result("test", "", "", 0 if self.tests_pass else 1, 0.0)
+            if command.label.startswith("health-watch"):
+                self.watches.append(command.argv)
+                code = self.watch_exit if self.watch_exit is not None else 0 if self.tests_pass else 3
+                return Result("watch", "", "", code, 0.0)
             if command.label.startswith("ros-probe"):
                 self.probes += 1
                 report = self.probe or {"topics": {"/joint_states": {"present": True, "ok": True, "rate": 10}}}
@@ -92,21 +98,30 @@ def test_a_starting_service_whose_own_check_passes_is_healthy_before_dockers_tic
     t = Scripted([[c("driver", health="starting"), c("perception", health="starting")]], tests_pass=True)
     verdict = wait_healthy(t, SPEC)
     assert verdict.ok, verdict.reason
-    assert ("docker", "exec", "demo-driver-1", "/opt/check") in t.tests
-    assert len(t.tests) == 2      # a passed check is not run again on later polls
+    watched = sorted(argv[2] for argv in t.watches)
+    assert watched == ["demo-driver-1", "demo-perception-1"]   # one watch each: passed is not rerun
+    assert not t.tests and all(argv[-2:] == ("CMD", "/opt/check") for argv in t.watches)
 
 
 def test_a_failing_own_check_keeps_waiting_for_docker() -> None:
     t = Scripted([[c("driver"), c("perception", health="starting")]], tests_pass=False)
     verdict = wait_healthy(t, SPEC)
     assert not verdict.ok and "perception: health starting" in verdict.reason
-    assert t.tests and all(argv[2] == "demo-perception-1" for argv in t.tests)
+    assert t.watches and all(argv[2] == "demo-perception-1" for argv in t.watches)
+
+
+def test_an_image_the_watch_cannot_loop_in_is_tested_one_exec_at_a_time() -> None:
+    # 126: docker exec found no /bin/sh in the image
+    t = Scripted([[c("driver"), c("perception", health="starting")]], tests_pass=True, watch_exit=126)
+    verdict = wait_healthy(t, SPEC)
+    assert verdict.ok, verdict.reason
+    assert len(t.watches) == 1 and t.tests == [("docker", "exec", "demo-perception-1", "/opt/check")]
 
 
 def test_docker_unhealthy_wins_over_a_passing_own_check() -> None:
     t = Scripted([[c("driver"), c("perception", health="unhealthy")]], tests_pass=True)
     verdict = wait_healthy(t, SPEC)
-    assert not verdict.ok and verdict.service == "perception" and not t.tests
+    assert not verdict.ok and verdict.service == "perception" and not t.tests and not t.watches
 
 
 def test_a_known_good_release_needs_no_probe_and_no_stable_window() -> None:
@@ -151,3 +166,27 @@ def test_a_start_level_waits_only_for_its_own_services() -> None:
     t = Scripted([[c("driver", health="starting")], [c("driver")]])   # perception not created yet
     verdict = wait_healthy(t, SPEC, checks_only=True, services=("driver",))
     assert verdict.ok and t.probes == 0
+
+
+def test_polls_slow_down_while_watches_cover_everything_waited_for() -> None:
+    import time
+    from rosdeploy.health import FAST_POLL, WATCHED_POLL, poll_interval
+    policy = HealthPolicy(interval=5.0)
+    now = time.monotonic()
+    assert poll_interval(policy, now) == FAST_POLL
+    assert poll_interval(policy, now, watched=True) == WATCHED_POLL > FAST_POLL
+    assert poll_interval(policy, now - 60, watched=True) == 5.0      # after the fast window: health.interval
+
+
+def test_watching_is_true_only_while_each_waiting_service_has_a_running_watch() -> None:
+    from concurrent.futures import Future
+    from rosdeploy.health import Poller
+    from rosdeploy.robot import Container
+    driver, perception = (Container.from_json({**c(s, health="starting"), "id": s}) for s in ("driver", "perception"))
+    poller = Poller(Scripted([]), SPEC, watch=True)
+    poller.watches["driver"] = Future()                     # running
+    waiting = {"driver": "health starting", "perception": "health starting"}
+    assert not poller.watching((driver, perception), waiting)  # perception is not watched
+    assert poller.watching((driver, perception), {"driver": "health starting"})
+    poller.watches["driver"].set_result(3)                  # ended: poll at the normal pace
+    assert not poller.watching((driver, perception), {"driver": "health starting"})

@@ -35,6 +35,18 @@ def test_parse_state_reads_every_section() -> None:
     assert st.manifest["digest"] == "bbb"
 
 
+@pytest.mark.parametrize("labels,flavor", [
+    (("2.40.3", "2.40.3"), "v2"), (("1.29.2",), "v1"),
+    ((), None),                       # nothing created: the full state must ask compose
+    (("2.40.3", "1.29.2"), None),     # created by both: ask compose, do not guess
+    (("", ""), None),                 # not created by compose
+])
+def test_running_flavor_comes_from_the_containers_compose_label(labels: tuple, flavor: str | None) -> None:
+    containers = [{"name": f"/c{i}", "service": f"s{i}", "image": "i", "status": "running",
+                   "ps_status": "Up 1 minute", "compose": v} for i, v in enumerate(labels)]
+    assert parse_state(state_text(containers=containers)).running_flavor == flavor
+
+
 def test_docker_error_is_not_ok() -> None:
     st = parse_state(state_text().replace("20.10.24+dfsg1", "permission denied while trying to connect"))
     assert not st.docker_ok

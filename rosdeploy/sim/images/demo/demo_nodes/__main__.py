@@ -21,8 +21,18 @@ def main() -> int:
             from demo_nodes.perception import run
         return run(cfg)
     finally:
-        watcher.terminate()
-        watcher.wait(timeout=5)
+        stop(watcher)
+
+
+def stop(watcher: subprocess.Popen) -> None:
+    # The watcher holds no state: if it is not gone a second after SIGTERM (seen: rclpy
+    # missing the signal under load), kill it rather than hold `docker stop` for its grace.
+    watcher.terminate()
+    try:
+        watcher.wait(timeout=1.0)
+    except subprocess.TimeoutExpired:
+        watcher.kill()
+        watcher.wait()
 
 
 if __name__ == "__main__":

@@ -13,6 +13,12 @@ def spin_until_stopped(node: Node) -> int:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # The signal can shut the context down while the executor builds its wait set;
+        # rclpy then raises RCLError instead of ExternalShutdownException (seen: exit 1
+        # on `docker stop`). After a shutdown that is a clean stop, not a crash.
+        if rclpy.ok():
+            raise
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
