@@ -50,9 +50,9 @@ compose() { if [ "$flavor" = v1 ]; then docker-compose "$@"; else docker compose
 '''
 
 # The project's containers in one call. The Engine API through curl when the CLI would
-# talk to the local socket anyway: curl starts in ~5 ms, the docker CLI (Go) in ~20 ms on
-# a PC and 100 ms and more on a robot's ARM board. Else one `docker ps` (contexts,
-# remote DOCKER_HOST, no curl). Both name the fields the same (parse_containers).
+# talk to the local socket anyway: ~12 ms of CPU less per call than the docker CLI (a Go
+# program) on the benchmark's PC, and `status` runs it on every robot at once. Else one
+# `docker ps` (contexts, remote DOCKER_HOST, no curl). parse_containers reads both.
 _PS = r"""
 ps_json() {
   sock=/var/run/docker.sock

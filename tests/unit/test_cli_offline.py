@@ -160,6 +160,19 @@ def test_template_error_names_template_file_and_line(capsys: pytest.CaptureFixtu
     assert code == 2 and "logrotate.conf.j2:3" in err
 
 
+def test_a_broken_template_stops_apply_but_not_an_emergency_rollback(capsys: pytest.CaptureFixture,
+                                                                     lab: Path) -> None:
+    (lab / "templates").mkdir()
+    (lab / "templates" / "logrotate.conf.j2").write_text("{{ no_such_variable }}\n")
+    edit(lab / "fleet.yml", lambda d: d.update(templates="./templates"))
+    code, _, err = lab_run(capsys, lab, "apply", "--yes")
+    assert code == 2 and "logrotate.conf.j2" in err
+    # rollback goes to the releases kept on the robots: it reaches for them (none answer here)
+    code, out, err = lab_run(capsys, lab, "rollback", "--yes")
+    assert code == 3 and "logrotate.conf.j2" not in out + err
+    assert "unreachable" in out or "host key" in out
+
+
 def test_template_syntax_error(capsys: pytest.CaptureFixture, lab: Path) -> None:
     (lab / "templates").mkdir()
     (lab / "templates" / "compose.yml.j2").write_text("services:\n{% for x in %}\n")
