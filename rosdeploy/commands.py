@@ -244,17 +244,24 @@ def up(root: str, project: str, release: str, flavor: str, services: tuple[str, 
     return script("up", UP_SCRIPT, root, project, release, flavor, mode, *services, timeout=timeout)
 
 
+def _runnable_test(test: tuple[str, ...]) -> tuple[str, tuple[str, ...]] | None:
+    """("CMD", argv) or ("CMD-SHELL", (command,)) from a HEALTHCHECK test; None for NONE
+    or a form rosdeploy does not know."""
+    kind, args = (test[0], test[1:]) if test else ("NONE", ())
+    if kind not in ("CMD", "CMD-SHELL") or not args:
+        return None
+    return kind, args[:1] if kind == "CMD-SHELL" else args
+
+
 def health_test(container: str, test: tuple[str, ...], timeout: float) -> Command | None:
     """Run a container's own HEALTHCHECK test now, the way Docker runs it (exec, exit 0 = pass).
     None for NONE or an unknown form. Docker < 25 first runs it one full `interval` after
     the start (no `start_interval`); running it ourselves ends that wait."""
-    kind, args = (test[0], test[1:]) if test else ("NONE", ())
-    if kind == "CMD" and args:
-        argv = ("docker", "exec", container, *args)
-    elif kind == "CMD-SHELL" and args:
-        argv = ("docker", "exec", container, "/bin/sh", "-c", args[0])
-    else:
+    runnable = _runnable_test(test)
+    if runnable is None:
         return None
+    kind, args = runnable
+    argv = ("docker", "exec", container, *(args if kind == "CMD" else ("/bin/sh", "-c", args[0])))
     return Command(argv, timeout=timeout, label=f"health-test {container}")
 
 
@@ -284,12 +291,12 @@ def health_watch(container: str, test: tuple[str, ...], timeout: float, window: 
     """Run a container's own health test inside it every `every` s for about `window` s,
     until it passes. None for NONE or an unknown form. A try that hangs is bounded by
     the command's timeout (the window plus the test's own timeout)."""
-    kind, args = (test[0], test[1:]) if test else ("NONE", ())
-    if kind not in ("CMD", "CMD-SHELL") or not args:
+    runnable = _runnable_test(test)
+    if runnable is None:
         return None
+    kind, args = runnable
     argv = ("docker", "exec", container, "/bin/sh", "-c", HEALTH_WATCH_SCRIPT, "sh",
-            str(max(1, round(window / every))), f"{every:g}", str(max(1, round(1 / every))), kind,
-            *(args[:1] if kind == "CMD-SHELL" else args))
+            str(max(1, round(window / every))), f"{every:g}", str(max(1, round(1 / every))), kind, *args)
     return Command(argv, timeout=window + timeout + 5.0, label=f"health-watch {container}")
 
 

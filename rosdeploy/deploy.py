@@ -344,7 +344,7 @@ def rollback_host(ctx: RunContext, host: Host, to_version: str | None = None,
         run.close()
 
 
-def rollback_state(run: RobotRun) -> tuple[RobotState, str | None]:
+def _rollback_state(run: RobotRun) -> tuple[RobotState, str | None]:
     """The state a rollback needs and the compose flavour to switch with. Quick when the
     running containers' labels tell the flavour: an emergency skips the preflight facts."""
     state = run.read_state(full=False, step="state")
@@ -356,7 +356,7 @@ def rollback_state(run: RobotRun) -> tuple[RobotState, str | None]:
 
 
 def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> HostResult:
-    state, flavor = rollback_state(run)
+    state, flavor = _rollback_state(run)
     if to_release:
         target = to_release if to_release in state.releases else None
     else:
