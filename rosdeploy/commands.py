@@ -74,8 +74,7 @@ ps_json
 # and an exec, and `status` runs this on every robot at once.
 _FILES = r"""
 show() { [ -r "$1" ] || return 0; while IFS= read -r line || [ -n "$line" ]; do printf '%s\n' "$line"; done < "$1"; }
-contains() { [ -r "$1" ] || return 1; while IFS= read -r line || [ -n "$line" ]; do
-  case $line in *"$2"*) return 0 ;; esac; done < "$1"; return 1; }
+contains() { case $(show "$1") in *"$2"*) return 0 ;; esac; return 1; }
 """
 
 STATE_SCRIPT = _PROLOGUE + _FILES + r"""

@@ -282,3 +282,6 @@ def test_state_reads_containers_through_the_engine_api_when_the_cli_would_use_th
 def test_state_falls_back_to_docker_ps(tmp_path: Path) -> None:
     assert _state_with(tmp_path / "a", "unix://SOCK", curl_exit=7)[0] == ["curl", "docker"]   # curl failed
     assert _state_with(tmp_path / "b", "tcp://10.0.0.2:2376")[0] == ["docker"]              # not a local socket
+    (tmp_path / "c" / ".docker").mkdir(parents=True)
+    (tmp_path / "c" / ".docker" / "config.json").write_text('{"currentContext": "robot-lab"}')
+    assert _state_with(tmp_path / "c", "unix://SOCK")[0] == ["docker"]                       # a docker context
