@@ -150,7 +150,7 @@ def one_round(bench: SimBench, tool: str, retries: int, discarded: list[dict[str
 def run_fanout(args: argparse.Namespace, raw: dict[str, Any], work: Path, playbook: Path, timeout: int,
                times: dict[str, dict[int, list[Timed]]]) -> None:
     """Fills `times` as it goes, so what was measured survives a later failure."""
-    times.update({"status": {}, "rosdeploy_noop": {}, "ansible_noop": {}})
+    times.update({"status_first": {}, "status": {}, "rosdeploy_noop": {}, "ansible_noop": {}})
     quiet_sim_fleet()
     setup, farm = fan.prepare(work / "fanout", raw, args.sizes, args.fanout_port)
     try:
@@ -161,9 +161,11 @@ def run_fanout(args: argparse.Namespace, raw: dict[str, Any], work: Path, playbo
         log(f"fan-out release {release} deployed to t001 and copied to every target")
         for n in args.sizes:
             for _ in range(args.runs):
-                measure(times["status"], n, lambda: fan.rosdeploy_status(setup, n))
+                measure(times["status_first"], n, lambda: fan.rosdeploy_status(setup, n, held=False))
+                measure(times["status"], n, lambda: fan.rosdeploy_status(setup, n, held=True))
                 measure(times["rosdeploy_noop"], n, lambda: fan.rosdeploy_noop(setup, n))
-            log(f"  N={n}: status {_secs(times['status'][n])}, no-op {_secs(times['rosdeploy_noop'][n])}")
+            log(f"  N={n}: status {_secs(times['status_first'][n])} connecting, {_secs(times['status'][n])} "
+                f"held, no-op {_secs(times['rosdeploy_noop'][n])}")
         runner = ans.Ansible(playbook, fan.ansible_inventory(setup), work)
         services = [name for name, svc in raw["services"].items() if not svc.get("profiles")]
         extra = fan.ansible_extra(setup, policy_vars(raw), services, timeout)

@@ -72,6 +72,7 @@ class RemoteError(RosdeployError):
 
     def __init__(self, host: str, message: str) -> None:
         self.host = host
+        self.detail = message
         super().__init__(f"{host}: {message}")
 
 
@@ -81,6 +82,10 @@ class ConnectError(RemoteError):
 
 class HostKeyError(ConnectError):
     pass
+
+
+class ChannelRefused(ConnectError):
+    """An open connection could not start a command: it died since its last use. Nothing ran."""
 
 
 class CommandFailed(RemoteError):

@@ -450,7 +450,8 @@ SERVICE = {
 }
 SECTIONS: dict[str, Mapping[str, Convert]] = {
     "ssh": {"known_hosts": Reader.local_path, "config": Reader.local_path,
-            "connect_timeout": _duration, "command_timeout": _duration},
+            "connect_timeout": _duration, "command_timeout": _duration,
+            "persist": _duration},
     "ros": {"rmw": _enum("fastdds", "cyclonedds"), "network_mode": _enum("host", "bridge"), "shm_size": _size},
     "logging": {"max_size": _size, "max_file": _integer(1)},
     "preflight": {"min_free_disk_mb": _integer(0)},
@@ -627,6 +628,7 @@ def _build(doc: Doc, top: dict) -> FleetSpec:
         templates=top.get("templates"), deploy_root=top.get("deploy_root", "~/rosdeploy"),
         known_hosts=ssh.get("known_hosts"), ssh_config=ssh.get("config"),
         connect_timeout=ssh.get("connect_timeout", 10.0), command_timeout=ssh.get("command_timeout", 600.0),
+        ssh_persist=ssh.get("persist", 60.0),
         min_free_disk_mb=top.get("preflight", {}).get("min_free_disk_mb", 1024),
         health=HealthPolicy(**health),
         rollout=RolloutPolicy(**{k: tuple(v) if k == "waves" else v for k, v in rollout.items()}),

@@ -139,6 +139,7 @@ class FleetSpec:
     ssh_config: str | None = None   # None: ~/.ssh/config if present
     connect_timeout: float = 10.0
     command_timeout: float = 600.0
+    ssh_persist: float = 60.0       # seconds read-only commands keep connections (0: off)
     min_free_disk_mb: int = 1024
     health: HealthPolicy = HealthPolicy()
     rollout: RolloutPolicy = RolloutPolicy()

@@ -24,7 +24,7 @@ import paramiko
 from fabric import Config, Connection
 
 from rosdeploy.commands import Command
-from rosdeploy.errors import CommandFailed, ConnectError, HostKeyError
+from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError
 from rosdeploy.model import Host
 
 
@@ -149,6 +149,9 @@ class SSHTransport:
         timeout = command.timeout or self.options.command_timeout
         try:
             chan = self._conn.transport.open_session(timeout=self.options.connect_timeout)
+        except (paramiko.SSHException, OSError, EOFError) as exc:
+            raise ChannelRefused(self.host.name, f"connection lost before `{command.display()}`: {exc}") from exc
+        try:
             chan.exec_command(command.wire())
             if command.stdin is not None:
                 chan.sendall(command.stdin)

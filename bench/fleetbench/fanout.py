@@ -18,13 +18,16 @@ Every target must be a true no-op for both tools:
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
 
 import yaml
+
+from rosdeploy import keeper
 
 from fleetbench import ansible as ans
 from fleetbench.proc import BenchError, Timed, check, expect, log, rosdeploy_argv, timed
@@ -154,14 +157,31 @@ def deploy_first_target(fanout: Fanout) -> None:
         check(["cp", "-a", str(fanout.root(first)), str(dest)], what=f"copying the deploy root to {target.name}")
 
 
-def rosdeploy_status(fanout: Fanout, n: int) -> Timed:
+def rosdeploy_status(fanout: Fanout, n: int, held: bool) -> Timed:
+    """`held`: the connections the previous command left with the keeper (ssh.persist, as
+    Ansible's ControlPersist); else the keeper is stopped first and this run connects."""
+    if not held:
+        check(rosdeploy_argv("connections", "--close"), what="stop the connection keeper")
+    pid, before = keeper_cpu()
     result = timed(rosdeploy_argv("--json", "status", str(fanout.fleet), "--limit", fanout.group(n)))
+    pid_after, after = keeper_cpu()
+    # The keeper is no child the run waits for: add its CPU, so the figure is the controller's.
+    result = replace(result, cpu=result.cpu + after - (before if pid == pid_after else 0.0))
     expect(result, [0], f"rosdeploy status over {n} fan-out targets")
     rows = json.loads(result.stdout)["robots"]
     bad = [r["host"] for r in rows if not (r["reachable"] and r["healthy"] and r["drift"] is False)]
     if len(rows) != n or bad:
         raise BenchError(f"status over {n} targets: {len(rows)} rows, not healthy/in sync: {bad[:5]}")
     return result
+
+
+def keeper_cpu() -> tuple[int | None, float]:
+    """The running keeper's pid and its user+sys CPU seconds so far."""
+    reply = keeper.ask({"op": "list"})
+    if not reply:
+        return None, 0.0
+    fields = Path(f"/proc/{reply['pid']}/stat").read_text().rsplit(")", 1)[1].split()
+    return reply["pid"], (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def rosdeploy_noop(fanout: Fanout, n: int) -> Timed:

@@ -7,10 +7,11 @@ import time
 from dataclasses import replace
 from typing import Callable, Sequence
 
-from rosdeploy import runlog
+from rosdeploy import keeper, runlog
 from rosdeploy.cli import report
 from rosdeploy.cli.common import add_fleet_args
 from rosdeploy.deploy import RunContext
+from rosdeploy.keeper import kept_connect
 from rosdeploy.errors import EXIT_ABORTED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, EXIT_PARTIAL, InputError
 from rosdeploy.model import Host, RolloutPolicy
 from rosdeploy.output import Output, confirm
@@ -51,6 +52,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_fleet_args(p, version=False)
     p.add_argument("-n", type=int, default=10, help="entries per robot")
     p.set_defaults(func=cmd_history)
+
+    p = sub.add_parser("connections", help="SSH connections held for status/plan/history (ssh.persist)")
+    p.add_argument("--close", action="store_true", help="close them all now and stop the keeper")
+    p.set_defaults(func=cmd_connections)
 
 
 def _add_run_args(p: argparse.ArgumentParser) -> None:
@@ -170,5 +175,14 @@ def cmd_history(args: argparse.Namespace, out: Output) -> int:
 
 
 def _each(args: argparse.Namespace, spec, hosts: Sequence[Host], work) -> list:
+    """Read-only work on every robot, over connections the keeper holds for the next command."""
     ctx = context(args, spec, lambda host, msg: None)
+    if spec.ssh_persist > 0:
+        ctx = replace(ctx, connect=kept_connect(spec.ssh_persist))
     return parallel(hosts, lambda h: work(ctx, h), spec.rollout.forks)
+
+
+def cmd_connections(args: argparse.Namespace, out: Output) -> int:
+    reply = keeper.ask({"op": "exit" if args.close else "list"})
+    report.connections(out, reply, closed=args.close)
+    return EXIT_OK

@@ -122,6 +122,22 @@ def history(out: Output, rows: Sequence[tuple], limit: int) -> None:
                      f"{e.get('result', '')}  by {e.get('by', '?')}{reason}")
 
 
+def connections(out: Output, reply: dict | None, closed: bool) -> None:
+    held = [] if reply is None else reply.get("connections", [])
+    if out.as_json:
+        out.document({"keeper": reply is not None, "closed": reply.get("closing", 0) if closed and reply else 0,
+                      "connections": held})
+    elif reply is None:
+        out.line("no connection keeper is running")
+    elif closed:
+        out.line(f"closed {reply.get('closing', 0)} connection(s); the keeper stops")
+    elif not held:
+        out.line("the connection keeper holds no connections")
+    else:
+        out.table(["robot", "endpoint", "user", "open (s)", "idle (s)", "in use"],
+                  [[c["robot"], c["endpoint"], c["user"] or "", c["age"], c["idle"], c["busy"]] for c in held])
+
+
 def _plain(obj: Any) -> Any:
     from dataclasses import asdict, is_dataclass
     return asdict(obj) if is_dataclass(obj) else obj

@@ -9,6 +9,7 @@ CI installs all of them (scripts/host-setup).
     fleet       function: the same fleet in a clean state (see rosdeploy.sim.reset)
     ssh         function: ssh(robot_name, user="robot") -> paramiko.SSHClient, host key
                 verified against the fleet's known_hosts (RejectPolicy), closed after the test
+    (autouse)   session: a connection keeper of the suite's own, stopped at the end
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from typing import Callable, Iterator
 import paramiko
 import pytest
 
-from rosdeploy import sim
+from rosdeploy import keeper, sim
 from rosdeploy.sim import SimFleet
 
 INTEGRATION_DIR = Path(__file__).parent
@@ -28,6 +29,15 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if INTEGRATION_DIR in Path(str(item.fspath)).parents:
             item.add_marker(pytest.mark.integration)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def own_keeper(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """status/plan/history hold connections in a keeper: the suite's is its own and ends with it."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("ROSDEPLOY_CONTROL_DIR", str(tmp_path_factory.mktemp("control")))
+        yield
+        keeper.ask({"op": "exit"})
 
 
 @pytest.fixture(scope="session")

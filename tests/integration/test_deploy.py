@@ -5,6 +5,8 @@ only what rosdeploy says.
 """
 from __future__ import annotations
 
+import subprocess
+import time
 from pathlib import Path
 
 import pytest
@@ -164,3 +166,33 @@ def test_users_and_compose_flavours(fleet, tmp_path: Path, user: str, compose: s
     assert env_mode == "600"
     made_by = {c["compose"].split(".")[0] for c in shell.containers().values()}
     assert made_by == {compose[1]}, f"containers must be created by Compose {compose}, not {made_by}"
+
+
+def test_status_holds_its_connections_and_still_sees_a_robot_go_down(fleet, fleet_file: Path) -> None:
+    first = rosdeploy("--json", "status", fleet_file)
+    names = sorted(r.name for r in fleet.robots)
+    assert {r["host"]: r["reachable"] for r in first.doc["robots"]} == {n: True for n in names}
+    held = {c["robot"]: c for c in rosdeploy("--json", "connections").doc["connections"]}
+    listed = time.monotonic()
+    assert sorted(held) == names
+    assert held["robot2"]["endpoint"] == f"[127.0.0.1]:{fleet.robot('robot2').ssh_port}"
+
+    again = rosdeploy("--json", "status", fleet_file)
+    assert again.doc["robots"] == first.doc["robots"]
+    after = {c["robot"]: c for c in rosdeploy("--json", "connections").doc["connections"]}
+    since = time.monotonic() - listed
+    assert all(after[n]["age"] >= held[n]["age"] + since - 0.2 for n in names), "the same connections"
+
+    container = fleet.robot("robot2").container
+    subprocess.run(["docker", "stop", "-t", "1", container], check=True, capture_output=True)
+    try:
+        down = rosdeploy("--json", "status", fleet_file)
+    finally:
+        simulator.up(robots=len(fleet.robots), home=fleet.home)
+    assert down.code == EXIT_PARTIAL
+    rows = {r["host"]: r for r in down.doc["robots"]}
+    assert not rows["robot2"]["reachable"] and "unreachable" in rows["robot2"]["error"]
+    assert rows["robot1"]["reachable"] and rows["robot3"]["reachable"]
+
+    closed = rosdeploy("--json", "connections", "--close")
+    assert closed.doc["keeper"] and closed.doc["closed"] >= 2

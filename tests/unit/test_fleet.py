@@ -86,6 +86,7 @@ def test_minimal_fleet_gets_documented_defaults(fleet_dir: Path) -> None:
     assert spec.image_ref(driver) == "registry.local:5000/acme/amr-driver:1.4.2"
     assert (spec.rmw, spec.network_mode, spec.shm_size, spec.log_max_file) == ("fastdds", "host", "512m", 3)
     assert spec.rollback.keep_releases == 3 and spec.rollout.waves == ("100%",)
+    assert spec.ssh_persist == 60.0
 
 
 def full_fleet(fleet_dir: Path) -> dict:
@@ -93,7 +94,8 @@ def full_fleet(fleet_dir: Path) -> dict:
     (fleet_dir / "templates").mkdir(exist_ok=True)
     return merge(BASE, {
         "templates": "./templates", "deploy_root": "/opt/rosdeploy",
-        "ssh": {"known_hosts": "~/kh", "config": "cfg", "connect_timeout": "5s", "command_timeout": "2m"},
+        "ssh": {"known_hosts": "~/kh", "config": "cfg", "connect_timeout": "5s", "command_timeout": "2m",
+                "persist": 0},
         "ros": {"rmw": "cyclonedds", "network_mode": "bridge", "shm_size": "1g"},
         "logging": {"max_size": "20m", "max_file": 5}, "preflight": {"min_free_disk_mb": 0},
         "health": {"timeout": "2m", "stable": 5, "interval": "500ms", "topic_window": "3s", "probe_service": "driver"},
@@ -124,7 +126,7 @@ def test_every_key_is_read(fleet_dir: Path) -> None:
     assert dict(d.extra) == {"cap_add": ["SYS_NICE"]}
     assert spec.templates == str(fleet_dir / "templates") and spec.deploy_root == "/opt/rosdeploy"
     assert spec.known_hosts == os.path.expanduser("~/kh") and spec.ssh_config == str(fleet_dir / "cfg")
-    assert (spec.connect_timeout, spec.command_timeout) == (5.0, 120.0)
+    assert (spec.connect_timeout, spec.command_timeout, spec.ssh_persist) == (5.0, 120.0, 0.0)
     assert (spec.rmw, spec.network_mode, spec.shm_size) == ("cyclonedds", "bridge", "1g")
     assert (spec.log_max_size, spec.log_max_file, spec.min_free_disk_mb) == ("20m", 5, 0)
     assert spec.health.timeout == 120 and spec.health.interval == 0.5 and spec.health.probe_service == "driver"
