@@ -187,7 +187,8 @@ for img in "$@"; do
 done
 for p in $pids; do wait "$p" || fail=1; done
 for img in "$@"; do
-  id=$(docker image inspect --format '{{.Id}} {{join .RepoDigests ","}}' "$img" 2>/dev/null)
+  # range, not join: Docker 20.10's template sees RepoDigests as []interface{} and join fails
+  id=$(docker image inspect --format '{{.Id}} {{range $i, $d := .RepoDigests}}{{if $i}},{{end}}{{$d}}{{end}}' "$img" 2>/dev/null)
   if [ -n "$id" ]; then printf 'ok %s %s\n' "$img" "$id"
   else
     f=/tmp/.rosdeploy-pull.$$.$(printf '%s' "$img" | cksum | cut -d' ' -f1)
@@ -426,6 +427,16 @@ def _from_engine_api(c: dict) -> dict:
             "image": c.get("Image", ""), "status": c.get("State", ""), "ps_status": c.get("Status", ""),
             "workdir": labels.get("com.docker.compose.project.working_dir"),
             "compose": labels.get("com.docker.compose.version")}
+
+
+MANIFEST_SCRIPT = _PROLOGUE + _FILES + r'''
+show "$dir/releases/$1/manifest.json"
+'''
+
+
+def manifest(root: str, project: str, release: str) -> Command:
+    """A kept release's manifest.json (empty output when it has none)."""
+    return script("manifest", MANIFEST_SCRIPT, root, project, release)
 
 
 RELEASE_FILES_SCRIPT = _PROLOGUE + r'''

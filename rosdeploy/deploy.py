@@ -27,7 +27,7 @@ from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
 from rosdeploy.robot import (RobotState, parse_state, passed_gate, previous_release, release_for_version,
-                            unhealthy_services)
+                            release_services, unhealthy_services)
 from rosdeploy.transport import SSHOptions, Transport, connect
 
 Progress = Callable[[str, str], None]   # (robot, what is happening)
@@ -134,7 +134,14 @@ class RobotRun:
         except RemoteError:
             pass   # connection gone: the lock names this run, `--break-lock` clears it
 
-    def start(self, release: str, flavor: str, together: bool = False) -> Verdict:
+    def kept_services(self, release: str) -> tuple[str, ...] | None:
+        """What a kept release runs, from its own manifest: going back to a release that lacks
+        a service the fleet file has now must not wait for that service."""
+        out = self.t.run(commands.manifest(self.root, self.spec.project, release))
+        return release_services(out.stdout) if out.ok else None
+
+    def start(self, release: str, flavor: str, together: bool = False,
+              services: tuple[str, ...] | None = None) -> Verdict:
         """Start the release, then the health gate; a failed `up` is diagnosed the same way.
 
         A new release starts level by level in `depends_on` order, each level as soon as
@@ -142,8 +149,11 @@ class RobotRun:
         already passed the gate on this robot. Every service starts at once (Docker's
         restart policies start it that way after every reboot, ignoring depends_on), and
         the gate is the brake's: running and passing health checks (see wait_healthy).
+        `services`: what a kept release runs when it is not what the fleet file has now; such a
+        release starts the compose way (its own depends_on), not by the fleet file's levels.
         """
-        levels = ((),) if together else start_levels(self.spec)
+        foreign = services is not None and set(services) != set(expected_services(self.spec))
+        levels = ((),) if together or foreign else start_levels(self.spec)
         began = time.monotonic()
         deadline = began + self.spec.health.timeout
         poller = Poller(self.t, self.spec, watch=True)
@@ -162,7 +172,7 @@ class RobotRun:
                     return diagnose(self.t, self.spec, "compose up failed: " + (lines[-1] if lines else "no output"))
         with self.step("health"):
             return wait_healthy(self.t, self.spec, since=began, deadline=deadline, checks_only=together,
-                                poller=poller)
+                                poller=poller, services=services)
 
     def history(self, entry: dict) -> None:
         self.t.run(commands.record(self.root, self.spec.project, self.entry(entry)))
@@ -288,7 +298,7 @@ def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict
             run.t.run(commands.down(run.root, run.spec.project, new, state.flavor or "v2"))
         return run.result(STOPPED, running_release=None,
                           reason=why + "; no previous release on the robot, so the failed one was stopped", **failed)
-    back = run.start(old, state.flavor or "v2", together=True)
+    back = run.start(old, state.flavor or "v2", together=True, services=run.kept_services(old))
     run.history({"event": "auto-rollback", "release": old, "rolled_back_from": new,
                  "result": "active" if back.ok else "unhealthy", "reason": verdict.reason})
     if back.ok:
@@ -314,7 +324,8 @@ def _tarball(run: RobotRun, release: RenderedRelease, pull_output: str) -> bytes
     manifest = {"project": run.spec.project, "host": run.host.name, "version": release.version,
                 "release": release.release_id, "digest": release.digest, "images": images,
                 "deployed_by": run.ctx.operator, "deployed_at": now(), "run": run.ctx.run_id,
-                "rosdeploy": __version__, "files": [f.name for f in release.files]}
+                "rosdeploy": __version__, "files": [f.name for f in release.files],
+                "services": list(expected_services(run.spec))}
     extra = [("manifest.json", json.dumps(manifest, indent=2, sort_keys=True) + "\n", 0o644),
              ("images.txt", "".join(f"{i}\n" for i in release.images), 0o644)]
     buf = io.BytesIO()
@@ -372,7 +383,7 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     if holder is not None:
         return run.result(LOCKED, reason=f"locked by another run: {holder} (use --break-lock if it is stale)",
                           **base)
-    verdict = run.start(target, flavor, together=passed_gate(state, target))
+    verdict = run.start(target, flavor, together=passed_gate(state, target), services=run.kept_services(target))
     run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
                           "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback"})
     base["running_release"] = target

@@ -134,6 +134,18 @@ def unhealthy_services(containers: Iterable[Container], expected: Iterable[str])
     return problems
 
 
+def release_services(manifest_text: str) -> tuple[str, ...] | None:
+    """The services a kept release runs, as its manifest recorded them when it was deployed;
+    None when it did not (deployed by an older rosdeploy) or the manifest is unreadable."""
+    try:
+        services = json.loads(manifest_text).get("services")
+    except (ValueError, AttributeError):
+        return None
+    if not isinstance(services, list) or not all(isinstance(s, str) for s in services):
+        return None
+    return tuple(services)
+
+
 def previous_release(state: RobotState) -> str | None:
     """The release to go back to: the newest one that was active before the current one,
     skipping releases an operator or rosdeploy already rolled back from (unless they

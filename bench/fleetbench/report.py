@@ -271,8 +271,9 @@ def docs_block(results: Mapping[str, Any], json_path: str) -> str:
         "",
     ]
     if results.get("fanout"):
-        parts += ["Fan-out, controller CPU (median user+sys seconds of the command and its children: what "
-                  "stays on the operator's machine when every target has its own CPUs):", "",
+        parts += ["Fan-out, controller CPU (median user+sys seconds of the command and its children, and for "
+                  "`status` the connection keeper's share: what stays on the operator's machine when every "
+                  "target has its own CPUs):", "",
                   markdown_table(fanout_cpu_rows(results), CPU_HEADER), ""]
     if results.get("fleet"):
         parts += ["Where rosdeploy's time goes (median seconds per robot, from `--json` step timings):", "",

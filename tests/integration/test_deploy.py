@@ -5,11 +5,13 @@ only what rosdeploy says.
 """
 from __future__ import annotations
 
+import json
 import subprocess
 import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from rosdeploy import sim as simulator
 from rosdeploy.errors import EXIT_ABORTED, EXIT_OK, EXIT_PARTIAL
@@ -30,6 +32,10 @@ def test_first_deploy_noop_and_single_robot_upgrade(fleet, fleet_file: Path) -> 
         assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"}
         assert all_healthy(shell)
         assert shell.current() == first.host(name)["new_release"]
+    manifest = json.loads(robots["robot1"].run("cat /home/robot/rosdeploy/demo/current/manifest.json"))
+    assert sorted(manifest["images"]) == [f"registry.local:5000/demo/{s}:1.0.0" for s in ("driver", "perception")]
+    assert all(i["id"].startswith("sha256:") and i["repo_digests"] for i in manifest["images"].values())
+    assert manifest["services"] == ["driver", "perception"]
     before = {name: shell.containers() for name, shell in robots.items()}
 
     again = deploy(fleet_file)
@@ -99,6 +105,25 @@ def test_emergency_rollback_works_with_the_registry_down(fleet, fleet_file: Path
         assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"}
         assert all_healthy(shell)
         assert shell.history()[-1]["event"] == "rollback"
+
+
+def test_rollback_judges_the_kept_release_by_its_own_services(fleet, tmp_path: Path, fleet_file: Path) -> None:
+    """1.1.0 adds a service; going back to 1.0.0 must not wait for it (it is not in 1.0.0)."""
+    assert deploy(fleet_file, "--limit", "robot1").code == EXIT_OK
+    services = yaml.safe_load(fleet_file.read_text())["services"]
+    extra = {**services["perception"], "depends_on": ["driver"], "topics": []}
+    (tmp_path / "grown").mkdir()
+    grown = write_fleet(tmp_path / "grown", write_inventory(fleet, tmp_path), services={"perception_b": extra})
+    up = deploy(grown, "--limit", "robot1", "--version", "1.1.0")
+    assert up.code == EXIT_OK, up.stderr
+    shell = RobotShell(fleet, "robot1")
+    assert set(shell.containers()) == {"driver", "perception", "perception_b"}
+
+    back = rosdeploy("--json", "rollback", grown, "--yes", "--limit", "robot1")
+    assert back.code == EXIT_OK, back.stderr
+    assert back.host("robot1")["outcome"] == "switched", back.host("robot1")
+    assert back.host("robot1")["seconds"] < 30, "judged by 1.0.0's services, not waiting for perception_b"
+    assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"} and all_healthy(shell)
 
 
 def test_registry_down_fails_the_pull_and_changes_nothing(fleet, fleet_file: Path) -> None:

@@ -285,3 +285,13 @@ def test_state_falls_back_to_docker_ps(tmp_path: Path) -> None:
     (tmp_path / "c" / ".docker").mkdir(parents=True)
     (tmp_path / "c" / ".docker" / "config.json").write_text('{"currentContext": "robot-lab"}')
     assert _state_with(tmp_path / "c", "unix://SOCK")[0] == ["docker"]                       # a docker context
+
+
+def test_manifest_reads_a_kept_release_and_is_empty_for_a_missing_one(tmp_path: Path) -> None:
+    release = tmp_path / "r" / "demo" / "releases" / "1.0.0-aaa"
+    release.mkdir(parents=True)
+    (release / "manifest.json").write_text('{"version": "1.0.0",\n "services": ["driver"]}')
+    out = run_local(commands.manifest("~/r", "demo", "1.0.0-aaa"), tmp_path)
+    assert out.returncode == 0 and json.loads(out.stdout) == {"version": "1.0.0", "services": ["driver"]}
+    gone = run_local(commands.manifest("~/r", "demo", "9.9.9-zzz"), tmp_path)
+    assert gone.returncode == 0 and gone.stdout == b""

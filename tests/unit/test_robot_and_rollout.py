@@ -7,7 +7,7 @@ import pytest
 
 from rosdeploy.model import Host, RolloutPolicy
 from rosdeploy.robot import (Container, parse_state, passed_gate, previous_release, release_for_version,
-                            unhealthy_services)
+                            release_services, unhealthy_services)
 from rosdeploy.rollout import allowed_failures, plan_waves, wave_sizes
 
 
@@ -143,3 +143,14 @@ def test_interrupt_between_waves_skips_the_rest_and_reports(monkeypatch) -> None
     assert result.interrupted and not result.ok
     assert [(h.host, h.outcome) for h in result.hosts] == [
         ("r0", "deployed"), ("r1", "skipped"), ("r2", "skipped"), ("r3", "skipped")]
+
+
+@pytest.mark.parametrize("text,services", [
+    ('{"services": ["driver", "perception"]}', ("driver", "perception")),
+    ('{"version": "1.0.0"}', None),                  # deployed before manifests listed services
+    ('{"services": "driver"}', None),
+    ('{"services": ["driver", 3]}', None),
+    ("", None), ("not json", None), ("[1, 2]", None),
+])
+def test_release_services_come_from_the_manifest_or_not_at_all(text: str, services) -> None:
+    assert release_services(text) == services
