@@ -77,6 +77,7 @@ class RobotRun:
         self.steps.append(Step(name, time.monotonic() - began))
 
     def result(self, outcome: str, **kw: object) -> HostResult:
+        self.ctx.progress(self.host.name, outcome)     # the last word on this robot's progress
         return HostResult(host=self.host.name, outcome=outcome, steps=tuple(self.steps),
                           seconds=time.monotonic() - self.started, **kw)  # type: ignore[arg-type]
 

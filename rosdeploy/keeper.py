@@ -82,10 +82,12 @@ def private_dir(path: Path) -> Path:
 
 
 def socket_path(directory: Path) -> Path:
-    """One keeper per rosdeploy build: a keeper started by other code is never asked to run ours."""
+    """One keeper per rosdeploy build and ssh-agent: a keeper started by other code is never
+    asked to run ours, and one started from another login never offers its stale agent."""
     here = Path(__file__).resolve().parent
     stamp = "".join(str(os.stat(here / name).st_mtime_ns) for name in ("keeper.py", "transport.py"))
-    build = hashlib.sha256(f"{__version__}/{PROTOCOL}/{stamp}".encode()).hexdigest()[:12]
+    agent = os.environ.get("SSH_AUTH_SOCK", "")
+    build = hashlib.sha256(f"{__version__}/{PROTOCOL}/{stamp}/{agent}".encode()).hexdigest()[:12]
     return directory / f"keeper-{build}.sock"
 
 

@@ -26,6 +26,7 @@ class Output:
         self.interactive = tty and not as_json
         self._secrets: set[str] = set()
         self._lock = threading.Lock()   # progress lines come from many robot threads
+        self._live: list[str] = []      # lines drawn at the bottom of the terminal (see live)
 
     # --- secrets --------------------------------------------------------------
     def mask(self, secrets: Iterable[str]) -> None:
@@ -68,10 +69,31 @@ class Output:
         codes = {"red": "31", "green": "32", "yellow": "33", "bold": "1", "dim": "2"}
         return f"\033[{codes[style]}m{text}\033[0m"
 
+    def live(self, lines: Sequence[str]) -> None:
+        """Redraw the region at the bottom of the terminal with `lines` (each shorter than the
+        terminal is wide); text written meanwhile appears above it. Terminal runs only: a CI
+        log gets plain lines instead (see cli.report.progress_view)."""
+        with self._lock:
+            self._erase_live()
+            self._live = [self.masked(line) for line in lines]
+            self._draw_live()
+
+    def _erase_live(self) -> None:
+        if self._live:   # to the start of the region's first line, then clear to the end
+            self.stdout.write(f"\033[{len(self._live)}F\033[J")
+            self.stdout.flush()
+
+    def _draw_live(self) -> None:
+        if self._live:
+            self.stdout.write("".join(line + "\n" for line in self._live))
+            self.stdout.flush()
+
     def _write(self, stream: TextIO, text: str) -> None:
         with self._lock:
+            self._erase_live()
             stream.write(self.masked(text) + "\n")
             stream.flush()
+            self._draw_live()
 
 
 def confirm(out: Output, question: str) -> bool:

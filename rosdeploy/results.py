@@ -15,6 +15,7 @@ UNREACHABLE = "unreachable"    # SSH failed: host key, network, auth
 LOCKED = "locked"              # another run holds the robot's lock
 SKIPPED = "skipped"            # not started: rollout stopped or interrupted first
 OK_OUTCOMES = frozenset({UNCHANGED, DEPLOYED, SWITCHED})
+OUTCOMES = OK_OUTCOMES | {ROLLED_BACK, FAILED, STOPPED, UNREACHABLE, LOCKED, SKIPPED}
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import getpass
-import time
 from dataclasses import replace
 from typing import Callable, Sequence
 
@@ -112,9 +111,9 @@ def cmd_apply(args: argparse.Namespace, out: Output) -> int:
     policy = _policy(spec.rollout, args)
     if not _confirmed(args, out, f"Deploy {spec.project} {spec.version} to {len(hosts)} robot(s)?"):
         return EXIT_INPUT
-    started = time.monotonic()
-    ctx = context(args, spec, report.progress_printer(out, started))
-    result = apply_fleet(ctx, hosts, releases, policy, report.rollout_notifier(out, args))
+    with report.progress_view(out, [h.name for h in hosts]) as view:
+        ctx = context(args, spec, view.progress)
+        result = apply_fleet(ctx, hosts, releases, policy, report.rollout_notifier(out, args, view))
     return _finish(out, result)
 
 
@@ -138,8 +137,9 @@ def cmd_rollback(args: argparse.Namespace, out: Output) -> int:
     target = args.to or "their previous release"
     if not _confirmed(args, out, f"Roll back {len(hosts)} robot(s) to {target}?"):
         return EXIT_INPUT
-    ctx = context(args, project.spec, report.progress_printer(out, time.monotonic()))
-    result = rollback_fleet(ctx, hosts, args.forks or max(len(hosts), 1), to_version=args.to)
+    with report.progress_view(out, [h.name for h in hosts]) as view:
+        ctx = context(args, project.spec, view.progress)
+        result = rollback_fleet(ctx, hosts, args.forks or max(len(hosts), 1), to_version=args.to)
     return _finish(out, result)
 
 

@@ -6,28 +6,159 @@ errors still go to stderr, so CI logs stay readable and the JSON parseable).
 from __future__ import annotations
 
 import argparse
+import shutil
+import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 from rosdeploy.output import Output, confirm
-from rosdeploy.results import OK_OUTCOMES, FleetResult, HostResult, version_of
+from rosdeploy.results import OK_OUTCOMES, OUTCOMES, FleetResult, HostResult, version_of
 
 
 
-def progress_printer(out: Output, started: float) -> Callable[[str, str], None]:
-    """One line per step per robot: works on a terminal and in a CI log alike."""
-    def show(host: str, step: str) -> None:
-        out.line(out.paint(f"{time.monotonic() - started:7.1f}s ", "dim") + f"{host:<16} {step}")
-    return show
+class ProgressLines:
+    """One line per step per robot: for CI logs and --json runs (on stderr there)."""
+
+    def __init__(self, out: Output, started: float) -> None:
+        self.out, self.started = out, started
+
+    def progress(self, host: str, step: str) -> None:
+        self.out.line(self.out.paint(f"{time.monotonic() - self.started:7.1f}s ", "dim") + f"{host:<16} {step}")
+
+    def wave(self, number: int, hosts: Sequence[str]) -> None:
+        pass
+
+    @contextmanager
+    def paused(self) -> Iterator[None]:
+        yield
 
 
-def rollout_notifier(out: Output, args: argparse.Namespace) -> Callable[[str, dict], None]:
+class Board:
+    """The live view on a terminal: one row per robot (wave, step, elapsed), redrawn in place
+    twice a second, so a hundred robots are a table and not a thousand scrolling lines."""
+
+    TICK = 0.5
+
+    def __init__(self, out: Output, hosts: Sequence[str], started: float, height: int) -> None:
+        self.out, self.started, self.height = out, started, max(height, 8)
+        self.rows: dict[str, dict] = {h: {"wave": "", "step": "waiting", "since": None, "done": None}
+                                      for h in hosts}
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+        self.hold = threading.Event()       # a prompt is on screen: do not draw over it
+
+    def progress(self, host: str, step: str) -> None:
+        now = time.monotonic()
+        with self.lock:
+            row = self.rows.setdefault(host, {"wave": "", "step": "", "since": None, "done": None})
+            if row["since"] is None or row["done"] is not None:    # a second run (fleet-level rollback)
+                row["since"], row["done"] = now, None
+            row["step"] = step
+            if step in OUTCOMES:
+                row["done"] = now
+        self.draw()
+
+    def wave(self, number: int, hosts: Sequence[str]) -> None:
+        with self.lock:
+            for host in hosts:
+                self.rows.setdefault(host, {"step": "waiting", "since": None, "done": None})["wave"] = number
+        self.draw()
+
+    @contextmanager
+    def paused(self) -> Iterator[None]:
+        self.hold.set()
+        self.out.live([])
+        try:
+            yield
+        finally:
+            self.hold.clear()
+            self.draw()
+
+    def draw(self) -> None:
+        if not self.hold.is_set():
+            self.out.live(self.lines(time.monotonic()))
+
+    def lines(self, now: float) -> list[str]:
+        with self.lock:
+            rows = list(self.rows.items())
+        width = shutil.get_terminal_size().columns - 1
+        shown = _most_telling(rows, self.height - 4)
+        table = [("ROBOT", "WAVE", "STEP", "ELAPSED")] + [
+            (h, str(r["wave"]), r["step"], _elapsed(r, now)) for h, r in shown]
+        widths = [max(len(t[i]) for t in table) for i in range(3)]
+        lines = [f"{a:<{widths[0]}}  {b:<{widths[1]}}  {c:<{widths[2]}}  {d}".rstrip() for a, b, c, d in table]
+        lines.append(_counts(rows, now - self.started, len(rows) - len(shown)))
+        return [line[:width] for line in lines]
+
+    def tick(self) -> None:
+        while not self.stop.wait(self.TICK):
+            self.draw()
+
+    def close(self) -> None:
+        self.stop.set()
+        self.out.live([])
+
+
+def _elapsed(row: dict, now: float) -> str:
+    if row["since"] is None:
+        return ""
+    return f"{(row['done'] or now) - row['since']:.1f}s"
+
+
+def _most_telling(rows: list[tuple[str, dict]], room: int) -> list[tuple[str, dict]]:
+    """All rows when they fit; else the robots that failed first (an operator acts on those),
+    then the running ones, then the rest; shown in inventory order."""
+    if len(rows) <= room:
+        return rows
+
+    def rank(item: tuple[str, dict]) -> int:
+        row = item[1]
+        if row["done"] is not None:
+            return 0 if row["step"] not in OK_OUTCOMES else 2
+        return 1 if row["since"] is not None else 2
+    keep = {h for h, _ in sorted(rows, key=rank)[:room]}
+    return [item for item in rows if item[0] in keep]
+
+
+def _counts(rows: list[tuple[str, dict]], elapsed: float, hidden: int) -> str:
+    running = sum(1 for _, r in rows if r["since"] is not None and r["done"] is None)
+    done = [r for _, r in rows if r["done"] is not None]
+    bad = sum(1 for r in done if r["step"] not in OK_OUTCOMES)
+    waiting = len(rows) - running - len(done)
+    more = f"  ({hidden} more not shown)" if hidden else ""
+    return (f"{elapsed:.1f}s: {running} running, {len(done)} done ({bad} not ok), "
+            f"{waiting} waiting{more}")
+
+
+@contextmanager
+def progress_view(out: Output, hosts: Sequence[str]) -> Iterator[ProgressLines | Board]:
+    """The board on a terminal, plain lines anywhere else; the board is gone before the summary."""
+    started = time.monotonic()
+    if not out.interactive:
+        yield ProgressLines(out, started)
+        return
+    board = Board(out, hosts, started, shutil.get_terminal_size().lines)
+    ticker = threading.Thread(target=board.tick, name="progress-board", daemon=True)
+    ticker.start()
+    try:
+        yield board
+    finally:
+        board.close()
+        ticker.join()
+
+
+def rollout_notifier(out: Output, args: argparse.Namespace,
+                     view: ProgressLines | Board) -> Callable[[str, dict], None]:
     def notify(event: str, data: dict) -> None:
         if event == "wave":
             out.line(out.paint(f"== wave {data['number']}/{data['of']}: {', '.join(data['hosts'])}", "bold"))
-            if args.step and data["number"] > 1 and out.interactive and not confirm(out, "Start this wave?"):
-                raise KeyboardInterrupt
+            view.wave(data["number"], data["hosts"])
+            if args.step and data["number"] > 1 and out.interactive:
+                with view.paused():
+                    if not confirm(out, "Start this wave?"):
+                        raise KeyboardInterrupt
         elif event == "abort":
             out.error(f"rollout stopped in wave {data['wave']}: {len(data['failed'])} robot(s) failed "
                       f"({', '.join(data['failed'])}), more than max_fail={data['max_fail']}")

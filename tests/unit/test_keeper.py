@@ -320,3 +320,12 @@ def test_after_exit_the_next_command_starts_a_new_keeper(tmp_path: Path, monkeyp
     second = keeper.ask({"op": "list"})["pid"]
     assert second != first
     keeper.ask({"op": "exit"})
+
+
+def test_another_ssh_agent_means_another_keeper(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("SSH_AUTH_SOCK", "/tmp/ssh-a/agent.1")
+    first = keeper.socket_path(tmp_path)
+    monkeypatch.setenv("SSH_AUTH_SOCK", "/tmp/ssh-b/agent.2")
+    assert keeper.socket_path(tmp_path) != first
+    monkeypatch.setenv("SSH_AUTH_SOCK", "/tmp/ssh-a/agent.1")
+    assert keeper.socket_path(tmp_path) == first
