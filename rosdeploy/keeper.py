@@ -245,8 +245,7 @@ def dial(persist: float) -> socket.socket:
     with _spawn_lock(path):
         sock = _try_dial(path)        # another caller may have started it while we waited
         if sock is None:
-            _spawn(path, persist)
-            sock = _wait_dial(path)
+            sock = _wait_dial(path, _spawn(path, persist))
     return sock
 
 
@@ -260,15 +259,14 @@ def _try_dial(path: Path) -> socket.socket | None:
         return None
 
 
-def _wait_dial(path: Path) -> socket.socket:
+def _wait_dial(path: Path, keeper: subprocess.Popen) -> socket.socket:
     deadline = time.monotonic() + SPAWN_WAIT
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and keeper.poll() is None:
         sock = _try_dial(path)
         if sock is not None:
             return sock
         time.sleep(0.01)
-    raise KeeperUnavailable(f"the connection keeper did not start within {SPAWN_WAIT:g}s "
-                            f"(see {path.with_suffix('.log')})")
+    raise KeeperUnavailable(f"the connection keeper did not start (see {path.with_suffix('.log')})")
 
 
 @contextlib.contextmanager
@@ -281,14 +279,17 @@ def _spawn_lock(path: Path) -> Iterator[None]:
         os.close(fd)
 
 
-def _spawn(path: Path, persist: float) -> None:
+def _spawn(path: Path, persist: float) -> subprocess.Popen:
     with contextlib.suppress(FileNotFoundError):
         path.unlink()     # a keeper that died left its socket behind: nobody answers on it
     log = os.open(path.with_suffix(".log"), os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
+    # This very rosdeploy, also when it runs from a checkout rather than an installed package.
+    package_root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [package_root, os.environ.get("PYTHONPATH")]))}
     try:
-        subprocess.Popen([sys.executable, "-m", "rosdeploy.keeper", str(path), str(persist)],
-                         stdin=subprocess.DEVNULL, stdout=log, stderr=log, cwd="/",
-                         start_new_session=True, close_fds=True)
+        return subprocess.Popen([sys.executable, "-m", "rosdeploy.keeper", str(path), str(persist)],
+                                stdin=subprocess.DEVNULL, stdout=log, stderr=log, cwd="/", env=env,
+                                start_new_session=True, close_fds=True)
     except OSError as exc:
         raise KeeperUnavailable(f"cannot start the connection keeper: {exc}") from exc
     finally:

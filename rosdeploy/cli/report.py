@@ -77,7 +77,7 @@ class Board:
             self.draw()
 
     def draw(self) -> None:
-        if not self.hold.is_set():
+        if not (self.hold.is_set() or self.stop.is_set()):
             self.out.live(self.lines(time.monotonic()))
 
     def lines(self, now: float) -> list[str]:
@@ -96,8 +96,10 @@ class Board:
         while not self.stop.wait(self.TICK):
             self.draw()
 
-    def close(self) -> None:
+    def close(self, ticker: threading.Thread) -> None:
+        """Stop drawing, wait for the ticker's last draw, then erase: the summary follows."""
         self.stop.set()
+        ticker.join()
         self.out.live([])
 
 
@@ -145,8 +147,7 @@ def progress_view(out: Output, hosts: Sequence[str]) -> Iterator[ProgressLines |
     try:
         yield board
     finally:
-        board.close()
-        ticker.join()
+        board.close(ticker)
 
 
 def rollout_notifier(out: Output, args: argparse.Namespace,

@@ -329,3 +329,12 @@ def test_another_ssh_agent_means_another_keeper(tmp_path: Path, monkeypatch: pyt
     assert keeper.socket_path(tmp_path) != first
     monkeypatch.setenv("SSH_AUTH_SOCK", "/tmp/ssh-a/agent.1")
     assert keeper.socket_path(tmp_path) == first
+
+
+def test_a_keeper_that_cannot_start_is_given_up_at_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("ROSDEPLOY_CONTROL_DIR", str(tmp_path / "cp"))
+    monkeypatch.setattr(keeper.sys, "executable", "/bin/false")     # exits at once, never listens
+    started = time.monotonic()
+    with pytest.raises(keeper.KeeperUnavailable, match="did not start"):
+        keeper.dial(5)
+    assert time.monotonic() - started < keeper.SPAWN_WAIT / 2
