@@ -10,6 +10,7 @@ import shutil
 import threading
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
@@ -35,6 +36,27 @@ class ProgressLines:
         yield
 
 
+@dataclass
+class Row:
+    """One robot on the board."""
+
+    wave: int | str = ""
+    step: str = "waiting"
+    since: float | None = None      # when its current run began
+    done: float | None = None       # when that run ended with an outcome
+
+    @property
+    def running(self) -> bool:
+        return self.since is not None and self.done is None
+
+    @property
+    def failed(self) -> bool:
+        return self.done is not None and self.step not in OK_OUTCOMES
+
+    def elapsed(self, now: float) -> str:
+        return "" if self.since is None else f"{(self.done or now) - self.since:.1f}s"
+
+
 class Board:
     """The live view on a terminal: one row per robot (wave, step, elapsed), redrawn in place
     twice a second, so a hundred robots are a table and not a thousand scrolling lines."""
@@ -43,8 +65,7 @@ class Board:
 
     def __init__(self, out: Output, hosts: Sequence[str], started: float, height: int) -> None:
         self.out, self.started, self.height = out, started, max(height, 8)
-        self.rows: dict[str, dict] = {h: {"wave": "", "step": "waiting", "since": None, "done": None}
-                                      for h in hosts}
+        self.rows: dict[str, Row] = {h: Row() for h in hosts}
         self.lock = threading.Lock()
         self.stop = threading.Event()
         self.hold = threading.Event()       # a prompt is on screen: do not draw over it
@@ -52,18 +73,18 @@ class Board:
     def progress(self, host: str, step: str) -> None:
         now = time.monotonic()
         with self.lock:
-            row = self.rows.setdefault(host, {"wave": "", "step": "", "since": None, "done": None})
-            if row["since"] is None or row["done"] is not None:    # a second run (fleet-level rollback)
-                row["since"], row["done"] = now, None
-            row["step"] = step
+            row = self.rows.setdefault(host, Row())
+            if not row.running:             # its first step, or a second run (fleet-level rollback)
+                row.since, row.done = now, None
+            row.step = step
             if step in OUTCOMES:
-                row["done"] = now
+                row.done = now
         self.draw()
 
     def wave(self, number: int, hosts: Sequence[str]) -> None:
         with self.lock:
             for host in hosts:
-                self.rows.setdefault(host, {"step": "waiting", "since": None, "done": None})["wave"] = number
+                self.rows.setdefault(host, Row()).wave = number
         self.draw()
 
     @contextmanager
@@ -82,14 +103,13 @@ class Board:
 
     def lines(self, now: float) -> list[str]:
         with self.lock:
-            rows = list(self.rows.items())
+            rows = [(h, replace(r)) for h, r in self.rows.items()]
         width = shutil.get_terminal_size().columns - 1
         shown = _most_telling(rows, self.height - 4)
-        table = [("ROBOT", "WAVE", "STEP", "ELAPSED")] + [
-            (h, str(r["wave"]), r["step"], _elapsed(r, now)) for h, r in shown]
+        table = [("ROBOT", "WAVE", "STEP", "ELAPSED")] + [(h, str(r.wave), r.step, r.elapsed(now)) for h, r in shown]
         widths = [max(len(t[i]) for t in table) for i in range(3)]
         lines = [f"{a:<{widths[0]}}  {b:<{widths[1]}}  {c:<{widths[2]}}  {d}".rstrip() for a, b, c, d in table]
-        lines.append(_counts(rows, now - self.started, len(rows) - len(shown)))
+        lines.append(_counts([r for _, r in rows], now - self.started, len(rows) - len(shown)))
         return [line[:width] for line in lines]
 
     def tick(self) -> None:
@@ -103,35 +123,22 @@ class Board:
         self.out.live([])
 
 
-def _elapsed(row: dict, now: float) -> str:
-    if row["since"] is None:
-        return ""
-    return f"{(row['done'] or now) - row['since']:.1f}s"
-
-
-def _most_telling(rows: list[tuple[str, dict]], room: int) -> list[tuple[str, dict]]:
+def _most_telling(rows: list[tuple[str, Row]], room: int) -> list[tuple[str, Row]]:
     """All rows when they fit; else the robots that failed first (an operator acts on those),
     then the running ones, then the rest; shown in inventory order."""
     if len(rows) <= room:
         return rows
-
-    def rank(item: tuple[str, dict]) -> int:
-        row = item[1]
-        if row["done"] is not None:
-            return 0 if row["step"] not in OK_OUTCOMES else 2
-        return 1 if row["since"] is not None else 2
-    keep = {h for h, _ in sorted(rows, key=rank)[:room]}
+    ranked = sorted(rows, key=lambda item: 0 if item[1].failed else 1 if item[1].running else 2)
+    keep = {h for h, _ in ranked[:room]}
     return [item for item in rows if item[0] in keep]
 
 
-def _counts(rows: list[tuple[str, dict]], elapsed: float, hidden: int) -> str:
-    running = sum(1 for _, r in rows if r["since"] is not None and r["done"] is None)
-    done = [r for _, r in rows if r["done"] is not None]
-    bad = sum(1 for r in done if r["step"] not in OK_OUTCOMES)
-    waiting = len(rows) - running - len(done)
+def _counts(rows: list[Row], elapsed: float, hidden: int) -> str:
+    running = sum(r.running for r in rows)
+    done = sum(r.done is not None for r in rows)
     more = f"  ({hidden} more not shown)" if hidden else ""
-    return (f"{elapsed:.1f}s: {running} running, {len(done)} done ({bad} not ok), "
-            f"{waiting} waiting{more}")
+    return (f"{elapsed:.1f}s: {running} running, {done} done ({sum(r.failed for r in rows)} not ok), "
+            f"{len(rows) - running - done} waiting{more}")
 
 
 @contextmanager

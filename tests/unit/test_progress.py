@@ -22,10 +22,9 @@ def test_board_rows_show_wave_step_and_elapsed_per_robot() -> None:
     b, _ = board(["robot1", "robot2", "robot3"])
     b.wave(1, ["robot1"])
     b.wave(2, ["robot2", "robot3"])
-    b.rows["robot1"].update(since=1.0)
+    b.rows["robot1"] = report.Row(wave=1, step="deployed", since=1.0, done=4.5)
     b.progress("robot2", "pull")
-    b.rows["robot2"]["since"] = 2.0
-    b.rows["robot1"].update(step="deployed", done=4.5)
+    b.rows["robot2"].since = 2.0
     lines = b.lines(now=5.0)
     assert lines[0].split() == ["ROBOT", "WAVE", "STEP", "ELAPSED"]
     assert lines[1].split() == ["robot1", "1", "deployed", "3.5s"]
@@ -38,19 +37,19 @@ def test_an_outcome_ends_a_robot_and_a_second_run_starts_it_again() -> None:
     b, _ = board(["robot1"])
     b.progress("robot1", "connect")
     b.progress("robot1", "rolled-back")
-    assert b.rows["robot1"]["done"] is not None
+    assert b.rows["robot1"].done is not None
     b.progress("robot1", "connect")          # fleet-level rollback: the robot runs again
-    assert b.rows["robot1"]["done"] is None and b.rows["robot1"]["step"] == "connect"
+    assert b.rows["robot1"].running and b.rows["robot1"].step == "connect"
 
 
 def test_a_fleet_larger_than_the_terminal_shows_running_and_failed_first() -> None:
     hosts = [f"r{i:03d}" for i in range(100)]
     b, _ = board(hosts, height=12)
     for h in hosts[:60]:
-        b.rows[h].update(since=0.0, done=1.0, step="deployed")
-    b.rows["r010"].update(step="failed")
+        b.rows[h] = report.Row(since=0.0, done=1.0, step="deployed")
+    b.rows["r010"].step = "failed"
     for h in hosts[90:]:
-        b.rows[h].update(since=0.5, step="health")
+        b.rows[h] = report.Row(since=0.5, step="health")
     lines = b.lines(now=2.0)
     shown = [line.split()[0] for line in lines[1:-1]]
     assert len(lines) <= 12 and len(shown) == 8
