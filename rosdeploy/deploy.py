@@ -99,16 +99,19 @@ class RobotRun:
     def compose_pref(self) -> str:
         return str(self.host.vars.get("rosdeploy_compose", "auto"))
 
-    def devices(self) -> tuple[str, ...]:
+    def required_paths(self) -> tuple[str, ...]:
+        """What must exist on the robot before a release may start: its devices and the
+        sources of its bind mounts (Docker would create a missing one as an empty root dir)."""
         used = {d for s in self.spec.services for d in s.devices}
-        return tuple(sorted(self.host.devices[d] for d in used if d in self.host.devices))
+        devices = {self.host.devices[d] for d in used if d in self.host.devices}
+        return tuple(sorted(devices | set(mount_sources(self.spec))))
 
     def wants_gpu(self) -> bool:
         return self.host.gpu and any(s.gpu for s in self.spec.services)
 
     def read_state(self, full: bool = True, step: str | None = None) -> RobotState:
         with self.step(step or ("state" if full else "check")):
-            out = self.t.run(commands.state(self.root, self.spec.project, self.devices(),
+            out = self.t.run(commands.state(self.root, self.spec.project, self.required_paths(),
                                             self.compose_pref, self.wants_gpu(), full=full))
         return parse_state(out.stdout)
 
@@ -211,13 +214,27 @@ def preflight(state: RobotState, run: RobotRun, free_needed: int) -> list[str]:
         problems.append(f"only {state.free_mb} MB free under {run.root}; the release needs "
                         f"{free_needed} MB (preflight.min_free_disk_mb)")
     by_path = {path: name for name, path in run.host.devices.items()}
+    mounts = mount_sources(run.spec)
     for path in state.missing_devices:
-        problems.append(f"device {path} (`devices.{by_path.get(path, '?')}` in the inventory) is missing "
-                        "on the robot: plug it in / check its udev rule, or fix the inventory")
+        if path in by_path or path not in mounts:
+            problems.append(f"device {path} (`devices.{by_path.get(path, '?')}` in the inventory) is missing "
+                            "on the robot: plug it in / check its udev rule, or fix the inventory")
+        else:
+            problems.append(f"{path} (`services.{mounts[path]}.volumes` in the fleet file) does not exist on "
+                            "the robot: create it there (maps, calibration...) or fix the mount")
     if run.wants_gpu() and "nvidia" not in (state.runtimes or {}):
         problems.append("robot has gpu: true but its Docker engine has no `nvidia` runtime: "
                         "install the NVIDIA Container Toolkit")
     return problems
+
+
+def mount_sources(spec: FleetSpec) -> dict[str, str]:
+    """Robot path -> the first service that bind-mounts it."""
+    sources: dict[str, str] = {}
+    for svc in spec.services:
+        for volume in svc.volumes:
+            sources.setdefault(volume.split(":")[0], svc.name)
+    return sources
 
 
 def up_to_date(state: RobotState, release: RenderedRelease, spec: FleetSpec) -> bool:

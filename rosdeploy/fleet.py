@@ -34,6 +34,10 @@ DEVICE_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
 TAG_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
 USER_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*(:[A-Za-z0-9_][A-Za-z0-9_.-]*)?")
 TOPIC_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
+ABSOLUTE_PATH_RE = re.compile(r"(/[A-Za-z0-9_.@+-]+)+/?")
+# Where rosdeploy mounts things itself (rendered DDS profile, /dev/shm, ROS logs): a bind
+# mount of the user's may not land on or under them.
+MANAGED_MOUNTS = ("/fastdds.xml", "/cyclonedds.xml", "/dev/shm", "/ros_log")
 REMOTE_PATH_RE = re.compile(r"(~|~/[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*|(/[A-Za-z0-9_.-]+)+)/?")
 _DOMAIN = r"(?:localhost|[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?)*)(?::[0-9]{1,5})?"
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
@@ -56,7 +60,8 @@ MANAGED_COMPOSE = {"image": "image/tag", "command": "command", "environment": "e
                    "privileged": "privileged", "profiles": "profiles", "logging": "logging (top level)",
                    "network_mode": "ros.network_mode", "networks": "ros.network_mode", "shm_size": "ros.shm_size",
                    "build": "image", "group_add": "devices (their groups, dialout or video, are added for you)",
-                   "volumes": "the release layout (DDS config, /dev/shm and logs are mounted for you)",
+                   "volumes": "volumes (bind mounts of robot directories; the DDS config, /dev/shm and logs "
+                              "are mounted for you)",
                    "labels": "project/service/version labels (rendered)"}
 
 Convert = Callable[["Reader", KeyPath, Any], Any]
@@ -419,6 +424,22 @@ def _order_by(r: Reader, kp: KeyPath, value: Any) -> Any:
     return None if value is None else _string(re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*"), "group prefix")(r, kp, value)
 
 
+def _mount(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """A bind mount "/robot/path:/container/path[:ro|rw]", normalized to always carry its mode."""
+    if not isinstance(value, str):
+        return r.error(kp, f'must be a string like "/opt/maps:/maps:ro"; got {_kind(value)}')
+    parts = value.split(":")
+    mode = parts.pop() if len(parts) == 3 and parts[2] in ("ro", "rw") else "rw"
+    if len(parts) != 2 or not all(ABSOLUTE_PATH_RE.fullmatch(p) for p in parts) or ".." in value.split("/"):
+        return r.error(kp, f"{value!r} is not a bind mount: use /path/on/robot:/path/in/container, optionally "
+                           f"followed by :ro or :rw; both paths absolute, letters, digits and ._@+- only")
+    source, target = (p.rstrip("/") or "/" for p in parts)
+    taken = next((m for m in MANAGED_MOUNTS if target == m or target.startswith(m + "/")), None)
+    if taken:
+        return r.error(kp, f"{target} is where rosdeploy mounts {taken} itself: choose another container path")
+    return f"{source}:{target}:{mode}"
+
+
 def _compose_extra(r: Reader, kp: KeyPath, value: Any) -> Any:
     """Compose keys passed through verbatim (cap_add, ulimits, ...), except those rosdeploy renders."""
     if not isinstance(value, dict):
@@ -438,6 +459,7 @@ SERVICE = {
     "environment": _named(ENV_RE, "environment variable", _text),
     "secrets": _named(ENV_RE, "environment variable", _string(ENV_RE, "inventory variable name")),
     "devices": _listof(_string(DEVICE_RE, "device name"), "logical device names"),
+    "volumes": _listof(_mount, "bind mounts"),
     "gpu": _boolean, "restart": _restart,
     "resources": _section({"memory": _size, "cpus": _positive}),
     "healthcheck": _healthcheck,
@@ -644,7 +666,7 @@ def _service(name: str, d: dict, version: str) -> Service:
     return Service(
         name=name, image=d["image"], tag=d.get("tag", version), command=d.get("command"),
         environment=frozen_map(d.get("environment")), secret_env=frozen_map(d.get("secrets")),
-        devices=d.get("devices", ()), gpu=d.get("gpu", False), restart=d.get("restart", "unless-stopped"),
+        devices=d.get("devices", ()), volumes=tuple(d.get("volumes", ())), gpu=d.get("gpu", False), restart=d.get("restart", "unless-stopped"),
         memory=resources.get("memory"), cpus=resources.get("cpus"),
         healthcheck=healthcheck if isinstance(healthcheck, HealthCheck) else None,
         healthcheck_from_image=healthcheck == HEALTH_FROM_IMAGE,

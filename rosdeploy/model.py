@@ -80,6 +80,7 @@ class Service:
     environment: Mapping[str, str] = field(default_factory=frozen_map)
     secret_env: Mapping[str, str] = field(default_factory=frozen_map)  # ENV name -> host var holding the secret
     devices: tuple[str, ...] = ()           # logical device names, resolved per robot
+    volumes: tuple[str, ...] = ()           # bind mounts "/robot/path:/container/path:ro|rw"
     gpu: bool = False
     restart: str = "unless-stopped"
     memory: str | None = None               # mem_limit, e.g. "512m"

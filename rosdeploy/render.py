@@ -208,6 +208,7 @@ class ServiceView:
     gpu: bool                               # service wants a GPU AND the robot has one
     shm_size: str
     log_dir: str                            # relative to the release dir
+    volumes: tuple[str, ...]                # the user's bind mounts, after rosdeploy's own
     labels: tuple[tuple[str, str], ...]
     extra_yaml: str                         # `extra`, YAML-dumped and indented for the service block
 
@@ -456,7 +457,8 @@ class Renderer:
             restart=svc.restart, mem_limit=svc.memory, cpus=svc.cpus, healthcheck=st.healthcheck,
             depends_on=tuple(sorted(svc.depends_on)), devices=tuple(devices), group_add=tuple(sorted(groups)),
             user=svc.user, privileged=svc.privileged, profiles=tuple(svc.profiles), gpu=gpu,
-            shm_size=shm, log_dir=f"../../logs/{svc.name}", labels=st.labels, extra_yaml=st.extra_yaml)
+            shm_size=shm, log_dir=f"../../logs/{svc.name}", volumes=svc.volumes, labels=st.labels,
+            extra_yaml=st.extra_yaml)
 
     def _render_value(self, template: jinja2.Template, host: Host, variables: Mapping[str, Any],
                       key: tuple[str, ...], problems: list[Problem]) -> str:

@@ -126,6 +126,28 @@ def test_rollback_judges_the_kept_release_by_its_own_services(fleet, tmp_path: P
     assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"} and all_healthy(shell)
 
 
+def test_a_bind_mount_needs_its_robot_directory_and_is_mounted_read_only(fleet, tmp_path: Path) -> None:
+    simulator.robot_exec("robot1", ["rm", "-rf", "/home/robot/maps"])
+    fleet_file = write_fleet(tmp_path, write_inventory(fleet, tmp_path))
+    doc = yaml.safe_load(fleet_file.read_text())
+    doc["services"]["driver"]["volumes"] = ["/home/robot/maps:/maps:ro"]
+    fleet_file.write_text(yaml.safe_dump(doc, sort_keys=False))
+
+    missing = deploy(fleet_file, "--limit", "robot1")
+    reason = missing.host("robot1")["reason"]
+    assert missing.host("robot1")["outcome"] == "failed"
+    assert "/home/robot/maps" in reason and "services.driver.volumes" in reason, reason
+    shell = RobotShell(fleet, "robot1")
+    assert shell.containers() == {}, "preflight stopped it before anything changed"
+
+    simulator.robot_exec("robot1", ["sh", "-c", "mkdir -p /home/robot/maps && echo warehouse-7 > /home/robot/maps/map.yaml"])
+    mounted = deploy(fleet_file, "--limit", "robot1")
+    assert mounted.code == EXIT_OK, mounted.stderr
+    assert shell.run("docker exec demo-driver-1 cat /maps/map.yaml").strip() == "warehouse-7"
+    assert shell.run("docker exec demo-driver-1 sh -c 'touch /maps/x 2>/dev/null || echo read-only'").strip() == \
+        "read-only"
+
+
 def test_registry_down_fails_the_pull_and_changes_nothing(fleet, fleet_file: Path) -> None:
     assert deploy(fleet_file, "--limit", "robot1").code == EXIT_OK
     shell = RobotShell(fleet, "robot1")

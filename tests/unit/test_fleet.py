@@ -464,3 +464,25 @@ def test_any_wrong_value_anywhere_is_a_clean_error(fleet_dir: Path) -> None:
                 load_fleet(write(fleet_dir, _replace(example, kp, wrong)))
             except FleetSpecError as exc:
                 assert exc.problems and all(p.file and p.message for p in exc.problems)
+
+
+def test_volumes_are_bind_mounts_normalized_with_their_mode(fleet_dir: Path) -> None:
+    spec = load_fleet(write(fleet_dir, merge(BASE, {"services": {"driver": {
+        "volumes": ["/opt/maps:/maps:ro", "/var/lib/calib/:/calib", "/srv/a:/b:rw"]}}})))
+    assert spec.services[0].volumes == ("/opt/maps:/maps:ro", "/var/lib/calib:/calib:rw", "/srv/a:/b:rw")
+
+
+@pytest.mark.parametrize("volume,words", [
+    ("maps:/maps", ["not a bind mount", "/path/on/robot:/path/in/container"]),
+    ("/opt/maps:maps", ["not a bind mount"]),
+    ("/opt/maps:/maps:rx", ["not a bind mount"]),
+    ("/opt/../etc:/etc2", ["not a bind mount"]),
+    ("/opt/m aps:/maps", ["not a bind mount"]),
+    ("/opt/$HOME:/maps", ["not a bind mount"]),
+    ("/opt/logs:/ros_log", ["where rosdeploy mounts /ros_log itself"]),
+    ("/tmp/x:/dev/shm/x", ["where rosdeploy mounts /dev/shm itself"]),
+    ("/etc/dds.xml:/fastdds.xml:ro", ["where rosdeploy mounts /fastdds.xml itself"]),
+    (7, ["must be a string"]),
+])
+def test_bad_volumes_name_the_entry_and_the_fix(fleet_dir: Path, volume: Any, words: list[str]) -> None:
+    one(fleet_dir, {"services": {"driver": {"volumes": [volume]}}}, "services.driver.volumes[0]", *words)

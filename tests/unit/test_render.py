@@ -225,6 +225,13 @@ def test_devices_resolved_with_groups() -> None:
     assert svc["group_add"] == ["dialout", "plugdev", "video"]
 
 
+def test_bind_mounts_follow_the_ones_rosdeploy_makes() -> None:
+    spec = make_spec(make_service(volumes=("/opt/maps:/maps:ro", "/var/lib/calib:/calib:rw")))
+    svc = compose(render(spec, make_host()))["services"]["driver"]
+    assert svc["volumes"][3:] == ["/opt/maps:/maps:ro", "/var/lib/calib:/calib:rw"]
+    assert svc["volumes"][1:3] == ["/dev/shm:/dev/shm", "../../logs/driver:/ros_log"]
+
+
 def test_missing_device_names_robot_service_and_device() -> None:
     spec = make_spec(make_service(devices=("lidar",)))
     with pytest.raises(RenderError) as err:
