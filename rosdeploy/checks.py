@@ -474,6 +474,20 @@ def _privileged(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
             "instead (their groups are added for you), or set `allow_privileged: true` to say it is on purpose")
 
 
+@rule("docker-socket-mounted", "error", "service", "No container mounts the Docker socket.",
+      "Remove the mount; a container that needs the engine is root on the robot. Add "
+      "`allow_privileged: true` if it is on purpose.")
+def _docker_socket(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    declared = ctx.service(name)
+    sources = {str(v.get("source", "") if isinstance(v, dict) else v).split(":")[0] for v in _as_list(svc.get("volumes"))}
+    socket = next((s for s in sorted(sources) if s.rstrip("/").endswith("docker.sock")), None)
+    if socket and not (declared and declared.allow_privileged):
+        yield ("services", name, "volumes"), (
+            f"service {name} mounts {socket}: whoever controls the container controls the robot's Docker "
+            "engine, which is root on the robot; remove the mount, or set `allow_privileged: true` to say it "
+            "is on purpose")
+
+
 @rule("shm-too-small", "error", "service", "shm_size is at least 256 MB (Docker's 64 MB breaks DDS shared memory).",
       "Set `ros.shm_size: 512m` (or share the host's with ipc: host).")
 def _shm_too_small(ctx: Context, t: Target, name: str, svc: dict) -> Finding:

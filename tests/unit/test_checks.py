@@ -238,6 +238,15 @@ def test_self_rotating_log_drivers(driver: str) -> None:
     silent("log-rotation-missing")
 
 
+def test_docker_socket_mounted() -> None:
+    mounts = ["./fastdds.xml:/fastdds.xml:ro", "/var/run/docker.sock:/var/run/docker.sock:rw"]
+    assert "root on the robot" in fires("docker-socket-mounted", volumes=mounts).message
+    assert fires("docker-socket-mounted", volumes=[{"type": "bind", "source": "/run/docker.sock",
+                                                    "target": "/d.sock"}]).key == "services.driver.volumes"
+    silent("docker-socket-mounted", volumes=mounts, fleet=spec(driver={"allow_privileged": True}))
+    silent("docker-socket-mounted", volumes=["/opt/maps:/maps:ro"])
+
+
 def test_privileged() -> None:
     assert "allow_privileged: true" in fires("privileged", privileged=True).message
     silent("privileged", privileged=True, fleet=spec(driver={"privileged": True, "allow_privileged": True}))
