@@ -430,7 +430,7 @@ def _mount(r: Reader, kp: KeyPath, value: Any) -> Any:
         return r.error(kp, f'must be a string like "/opt/maps:/maps:ro"; got {_kind(value)}')
     parts = value.split(":")
     mode = parts.pop() if len(parts) == 3 and parts[2] in ("ro", "rw") else "rw"
-    if len(parts) != 2 or not all(ABSOLUTE_PATH_RE.fullmatch(p) for p in parts) or ".." in value.split("/"):
+    if len(parts) != 2 or not all(ABSOLUTE_PATH_RE.fullmatch(p) and ".." not in p.split("/") for p in parts):
         return r.error(kp, f"{value!r} is not a bind mount: use /path/on/robot:/path/in/container, optionally "
                            f"followed by :ro or :rw; both paths absolute, letters, digits and ._@+- only")
     source, target = (p.rstrip("/") or "/" for p in parts)

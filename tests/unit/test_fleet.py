@@ -477,6 +477,8 @@ def test_volumes_are_bind_mounts_normalized_with_their_mode(fleet_dir: Path) -> 
     ("/opt/maps:maps", ["not a bind mount"]),
     ("/opt/maps:/maps:rx", ["not a bind mount"]),
     ("/opt/../etc:/etc2", ["not a bind mount"]),
+    ("/opt/..:/x", ["not a bind mount"]),
+    ("/opt:/x/..", ["not a bind mount"]),
     ("/opt/m aps:/maps", ["not a bind mount"]),
     ("/opt/$HOME:/maps", ["not a bind mount"]),
     ("/opt/logs:/ros_log", ["where rosdeploy mounts /ros_log itself"]),
