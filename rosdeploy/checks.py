@@ -479,8 +479,8 @@ def _privileged(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
       "`allow_privileged: true` if it is on purpose.")
 def _docker_socket(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
     declared = ctx.service(name)
-    sources = {str(v.get("source", "") if isinstance(v, dict) else v).split(":")[0] for v in _as_list(svc.get("volumes"))}
-    socket = next((s for s in sorted(sources) if s.rstrip("/").endswith("docker.sock")), None)
+    sources = sorted(_mount_source(v) for v in _as_list(svc.get("volumes")))
+    socket = next((s for s in sources if s.rstrip("/").endswith("docker.sock")), None)
     if socket and not (declared and declared.allow_privileged):
         yield ("services", name, "volumes"), (
             f"service {name} mounts {socket}: whoever controls the container controls the robot's Docker "
@@ -519,6 +519,11 @@ def _shares_ipc(svc: Mapping[str, Any]) -> bool:
     return ipc == "host" or ipc.startswith(("service:", "container:")) or "/dev/shm" in mounts
 
 
+def _mount_source(entry: Any) -> str:
+    """What a compose volume or device mapping takes from the robot, in its short or long form."""
+    return str(entry.get("source", "") if isinstance(entry, dict) else entry).split(":")[0]
+
+
 def _mount_target(volume: Any) -> str:
     """Where a compose volume lands in the container, in its short ("src:dst[:ro]") or long form."""
     if isinstance(volume, dict):
@@ -531,7 +536,7 @@ def _mount_target(volume: Any) -> str:
       "Add a udev entry in the inventory (`udev:`) and map /dev/robot/<name> instead of /dev/ttyUSB0.")
 def _device_unstable(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
     for entry in _as_list(svc.get("devices")):
-        path = str(entry.get("source", "") if isinstance(entry, dict) else entry).split(":")[0]
+        path = _mount_source(entry)
         if not path.startswith(STABLE_DEVICE_PREFIXES):
             yield ("services", name, "devices"), (
                 f"service {name} maps {path} on {ROBOTS}: names like /dev/ttyUSB0 change with USB enumeration "

@@ -666,7 +666,8 @@ def _service(name: str, d: dict, version: str) -> Service:
     return Service(
         name=name, image=d["image"], tag=d.get("tag", version), command=d.get("command"),
         environment=frozen_map(d.get("environment")), secret_env=frozen_map(d.get("secrets")),
-        devices=d.get("devices", ()), volumes=tuple(d.get("volumes", ())), gpu=d.get("gpu", False), restart=d.get("restart", "unless-stopped"),
+        devices=d.get("devices", ()), volumes=tuple(d.get("volumes", ())), gpu=d.get("gpu", False),
+        restart=d.get("restart", "unless-stopped"),
         memory=resources.get("memory"), cpus=resources.get("cpus"),
         healthcheck=healthcheck if isinstance(healthcheck, HealthCheck) else None,
         healthcheck_from_image=healthcheck == HEALTH_FROM_IMAGE,
