@@ -250,6 +250,13 @@ def stop_on_sigterm(_signum: int, _frame: Any) -> None:
     raise KeyboardInterrupt   # unwinds through every `finally`: sshd targets, containers, user
 
 
+def byte_compile() -> None:
+    """Compile rosdeploy's modules once, as `pip install` does, so both tools run from
+    bytecode (pip compiled the Ansible venv). A `pip install -e` checkout under
+    PYTHONDONTWRITEBYTECODE=1 would compile its ~40 modules again on every run (~70 ms)."""
+    check([sys.executable, "-m", "compileall", "-q", str(REPO / "rosdeploy")], what="byte-compiling rosdeploy")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parse_args(argv)
@@ -260,6 +267,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     work = Path(tempfile.mkdtemp(prefix="rdb-", dir="/tmp"))    # short: ControlPath sockets live here
     try:
         playbook = ans.ensure_venv()
+        byte_compile()
         raw = yaml.safe_load(args.fleet.read_text())
         rounds, fan_raw, discarded = {}, {}, []
         if not args.skip_fleet:

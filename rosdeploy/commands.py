@@ -205,33 +205,48 @@ def pull(images: tuple[str, ...], timeout: float | None = None) -> Command:
     return script("pull", PULL_SCRIPT, *images, timeout=timeout)
 
 
-UP_SCRIPT = _PROLOGUE + _COMPOSE + r'''
+# What the health gate reads of a container: one line of JSON per container.
+_INSPECT = r'''
+fmt='{"id":{{json .Id}},"name":{{json .Name}},"service":{{json (index .Config.Labels "com.docker.compose.service")}},"image":{{json .Config.Image}},"status":{{json .State.Status}},"health":{{if .State.Health}}{{json .State.Health.Status}}{{else}}null{{end}},"restarts":{{.RestartCount}},"started":{{json .State.StartedAt}},"workdir":{{json (index .Config.Labels "com.docker.compose.project.working_dir")}},"test":{{if .Config.Healthcheck}}{{json .Config.Healthcheck.Test}},"test_timeout":{{json .Config.Healthcheck.Timeout}}{{else}}null{{end}}}'
+'''
+
+UP_SCRIPT = _PROLOGUE + _COMPOSE + _INSPECT + r'''
 release=$1; flavor=$2; mode=$3; shift 3
 cd "$dir/releases/$release" || { echo "release $release is not on this robot" >&2; exit 4; }
-case $mode in
-  all) compose -p "$project" -f compose.yml up -d --remove-orphans 2>&1 ;;
-  each)
-    # One call per service: within one call compose would still wait for
-    # `depends_on: service_healthy` between them; the caller checks dependencies itself.
-    for service in "$@"; do
-      compose -p "$project" -f compose.yml up -d --remove-orphans --no-deps "$service" 2>&1 || exit $?
-    done ;;
-  together)
-    # Stop what runs all at once (compose stops one service after another; `docker stop`
-    # keeps each container's own stop signal and grace period), create everything, then
-    # start it all at once, as dockerd does when the robot boots.
-    running=$(docker ps -q --filter "label=com.docker.compose.project=$project")
-    [ -z "$running" ] || docker stop $running >/dev/null || exit $?
-    compose -p "$project" -f compose.yml up --no-start --remove-orphans 2>&1 || exit $?
-    # One `docker start` per container, in parallel: one call starts them one by one.
-    ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project" --filter status=created --filter status=exited)
-    pids=
-    for id in $ids; do docker start "$id" >/dev/null & pids="$pids $!"; done
-    failed=0
-    for pid in $pids; do wait "$pid" || failed=$?; done
-    exit $failed ;;
-  *) echo "unknown start mode $mode" >&2; exit 2 ;;
-esac
+ids=
+start() {
+  case $mode in
+    all) compose -p "$project" -f compose.yml up -d --remove-orphans 2>&1 ;;
+    each)
+      # One call per service: within one call compose would still wait for
+      # `depends_on: service_healthy` between them; the caller checks dependencies itself.
+      for service in "$@"; do
+        compose -p "$project" -f compose.yml up -d --remove-orphans --no-deps "$service" 2>&1 || return $?
+      done ;;
+    together)
+      # Stop what runs all at once (compose stops one service after another; `docker stop`
+      # keeps each container's own stop signal and grace period), create everything, then
+      # start it all at once, as dockerd does when the robot boots.
+      running=$(docker ps -q --filter "label=com.docker.compose.project=$project")
+      [ -z "$running" ] || docker stop $running >/dev/null || return $?
+      compose -p "$project" -f compose.yml up --no-start --remove-orphans 2>&1 || return $?
+      # One `docker start` per container, in parallel: one call starts them one by one.
+      ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project" --filter status=created --filter status=exited)
+      pids=
+      for id in $ids; do docker start "$id" >/dev/null & pids="$pids $!"; done
+      failed=0
+      for pid in $pids; do wait "$pid" || failed=$?; done
+      return $failed ;;
+    *) echo "unknown start mode $mode" >&2; return 2 ;;
+  esac
+}
+start "$@" || exit $?
+# The project's containers as the gate's first poll would read them: that poll is one
+# round trip (and, under load, a few tenths of a second) before the health watches begin.
+printf '\n@@started\n'
+[ -n "$ids" ] || ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project")
+[ -z "$ids" ] || docker inspect --format "$fmt" $ids 2>/dev/null
+exit 0
 '''
 
 
@@ -242,6 +257,12 @@ def up(root: str, project: str, release: str, flavor: str, services: tuple[str, 
     waiting on their dependencies; or `together`: every service started at once."""
     mode = "together" if together else "each" if services else "all"
     return script("up", UP_SCRIPT, root, project, release, flavor, mode, *services, timeout=timeout)
+
+
+def started_containers(up_output: str) -> tuple[dict, ...] | None:
+    """The containers a successful `up` listed once they were started; None if it listed none."""
+    _, mark, listed = up_output.partition("\n@@started\n")
+    return parse_containers(listed) if mark else None
 
 
 def _runnable_test(test: tuple[str, ...]) -> tuple[str, tuple[str, ...]] | None:
@@ -273,11 +294,16 @@ def health_test(container: str, test: tuple[str, ...], timeout: float) -> Comman
 # run this way (no /bin/sh in the image, or the container is gone).
 HEALTH_WATCH_SCRIPT = r'''
 tries=$1; every=$2; per_second=$3; kind=$4; shift 4
-now() { date +%s 2>/dev/null || echo 0; }
+# The clock in whole seconds, into $now. /proc/uptime is read by the shell itself: a
+# `$(date)` is two processes per reading, and this loop reads twice a try on every
+# starting container of every robot while the nodes themselves start.
+now() {
+  if read -r now _ 2>/dev/null </proc/uptime; then now=${now%.*}; else now=$(date +%s 2>/dev/null || echo 0); fi
+}
 while :; do
-  before=$(now)
+  now; before=$now
   if [ "$kind" = CMD-SHELL ]; then /bin/sh -c "$1"; else "$@"; fi >/dev/null 2>&1 && exit 0
-  took=$(( $(now) - before ))
+  now; took=$((now - before))
   tries=$((tries - 1 - 2 * took * per_second))
   [ "$tries" -gt 0 ] || exit 3
   sleep "$every"
@@ -310,9 +336,8 @@ def down(root: str, project: str, release: str, flavor: str) -> Command:
     return script("down", DOWN_SCRIPT, root, project, release, flavor)
 
 
-CONTAINERS_SCRIPT = r'''
+CONTAINERS_SCRIPT = _INSPECT + r'''
 project=$1; shift
-fmt='{"id":{{json .Id}},"name":{{json .Name}},"service":{{json (index .Config.Labels "com.docker.compose.service")}},"image":{{json .Config.Image}},"status":{{json .State.Status}},"health":{{if .State.Health}}{{json .State.Health.Status}}{{else}}null{{end}},"restarts":{{.RestartCount}},"started":{{json .State.StartedAt}},"workdir":{{json (index .Config.Labels "com.docker.compose.project.working_dir")}},"test":{{if .Config.Healthcheck}}{{json .Config.Healthcheck.Test}},"test_timeout":{{json .Config.Healthcheck.Timeout}}{{else}}null{{end}}}'
 if [ $# -gt 0 ]; then
   # Known containers by name: one docker CLI start per poll, not two (its whole cost on the
   # robot). A name that is gone is left out; the caller lists the project again then.

@@ -22,7 +22,8 @@ from typing import Callable, Iterator
 
 from rosdeploy import __version__, commands
 from rosdeploy.errors import CommandFailed, ConnectError, RemoteError
-from rosdeploy.health import Poller, Verdict, diagnose, expected_services, settled, start_levels, wait_healthy
+from rosdeploy.health import (Poller, Verdict, diagnose, expected_services, settled, start_levels,
+                              started_containers, wait_healthy)
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
@@ -174,6 +175,7 @@ class RobotRun:
                 if not out.ok:
                     lines = (out.stdout + out.stderr).strip().splitlines()
                     return diagnose(self.t, self.spec, "compose up failed: " + (lines[-1] if lines else "no output"))
+                poller.seed(started_containers(out.stdout))
         with self.step("health"):
             return wait_healthy(self.t, self.spec, since=began, deadline=deadline, checks_only=together,
                                 poller=poller, services=services)

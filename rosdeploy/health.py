@@ -50,6 +50,12 @@ def read_containers(t: Transport, project: str, names: tuple[str, ...] = ()) -> 
     return tuple(Container.from_json(c) for c in commands.parse_containers(result.stdout))
 
 
+def started_containers(up_output: str) -> tuple[Container, ...] | None:
+    """What `up` read of the project's containers right after starting them."""
+    listed = commands.started_containers(up_output)
+    return None if listed is None else tuple(Container.from_json(c) for c in listed)
+
+
 def start_levels(spec: FleetSpec) -> tuple[tuple[str, ...], ...]:
     """Expected services in start order: each level depends only on earlier levels.
     The fleet file is checked for cycles, so every service lands in a level."""
@@ -107,6 +113,12 @@ class Poller:
         self.watches: dict[str, Future[int]] = {}
         self.unwatchable: set[str] = set()     # container ids tested one exec at a time
         self.woken = threading.Event()         # a watch ended: poll now, not at the next tick
+        self.fresh: tuple[Container, ...] | None = None   # read by `up` just now: the next poll
+
+    def seed(self, containers: tuple[Container, ...] | None) -> None:
+        """Containers `up` listed after starting them: the next poll takes them instead of
+        reading again, so the health watches begin as soon as `up` returns."""
+        self.fresh = containers
 
     def watching(self, containers: tuple[Container, ...], waiting: Mapping[str, str]) -> bool:
         """Is every service still waited for a container whose watch is running?"""
@@ -121,7 +133,9 @@ class Poller:
         self.woken.clear()
 
     def poll(self, expected: tuple[str, ...]) -> tuple[tuple[Container, ...], tuple[str, str] | None]:
-        containers = read_containers(self.t, self.spec.project, self.names)
+        containers, self.fresh = self.fresh, None
+        if containers is None:
+            containers = read_containers(self.t, self.spec.project, self.names)
         if not {c.service for c in containers} >= set(expected) and self.names:
             containers = read_containers(self.t, self.spec.project)   # a service is new or gone
         self.names = tuple(c.name for c in containers)

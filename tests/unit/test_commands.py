@@ -4,6 +4,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import subprocess
 import tarfile
 from pathlib import Path
@@ -149,34 +150,60 @@ def fake_docker(tmp_path: Path) -> tuple[dict, Path]:
     bin_dir.mkdir()
     (bin_dir / "docker").write_text('#!/bin/sh\necho "$*" >> "$DOCKER_LOG"\n'
                                     'case "$1 $2" in "ps -aq"|"ps -q") echo c1; echo c2;; esac\n'
-                                    '[ "$*" != "$DOCKER_FAIL" ] || exit 5\n')
+                                    '[ "$*" != "$DOCKER_FAIL" ] || exit 5\n'
+                                    'if [ "$1" = inspect ]; then shift 2; for c in "$@"; do\n'
+                                    '  printf \'{"id": "%s", "name": "demo-%s", "status": "running"}\\n\' "$c" "$c"; done; fi\n')
     (bin_dir / "docker").chmod(0o755)
     env = {"HOME": str(tmp_path), "PATH": f"{bin_dir}:{os.environ['PATH']}", "DOCKER_LOG": str(log)}
     (tmp_path / "r/demo/releases/1.0.0-x").mkdir(parents=True)
     return env, log
 
 
+LIST_PROJECT = ["ps -aq --filter label=com.docker.compose.project=demo", "inspect c1 c2"]
+
+
 @pytest.mark.parametrize("kwargs,expected", [
-    ({}, ["compose -p demo -f compose.yml up -d --remove-orphans"]),
+    ({}, ["compose -p demo -f compose.yml up -d --remove-orphans", *LIST_PROJECT]),
     # one call per service, in the caller's order, none waiting on depends_on
     ({"services": ("driver", "perception")},
      ["compose -p demo -f compose.yml up -d --remove-orphans --no-deps driver",
-      "compose -p demo -f compose.yml up -d --remove-orphans --no-deps perception"]),
-    # create all, then a `docker start` of every created or stopped container, all at once
+      "compose -p demo -f compose.yml up -d --remove-orphans --no-deps perception", *LIST_PROJECT]),
+    # create all, then a `docker start` of every created or stopped container, all at once;
+    # those are the project's containers then, so they are inspected without listing again
     ({"together": True},
      ["ps -q --filter label=com.docker.compose.project=demo", "stop c1 c2",
       "compose -p demo -f compose.yml up --no-start --remove-orphans",
       "ps -aq --filter label=com.docker.compose.project=demo --filter status=created --filter status=exited",
-      "start c1", "start c2"]),
+      "start c1", "start c2", "inspect c1 c2"]),
 ])
 def test_up_modes_run_these_docker_calls(tmp_path: Path, kwargs: dict, expected: list[str]) -> None:
     env, log = fake_docker(tmp_path)
     cmd = commands.up("~/r", "demo", "1.0.0-x", "v2", **kwargs)
     out = subprocess.run(["sh", "-c", cmd.wire()], capture_output=True, env=env)
     assert out.returncode == 0, out.stderr
-    calls = log.read_text().splitlines()
-    parallel = [c for c in calls if c.startswith("start ")]    # in any order
-    assert [c for c in calls if c not in parallel] + sorted(parallel) == expected
+    calls = [re.sub(r"^inspect --format .* (c1 c2)$", r"inspect \1", c) for c in log.read_text().splitlines()]
+    at = [i for i, c in enumerate(calls) if c.startswith("start ")]    # parallel: in any order
+    for i, call in zip(at, sorted(calls[i] for i in at)):
+        calls[i] = call
+    assert calls == expected
+
+
+def test_up_lists_the_started_containers_for_the_gate(tmp_path: Path) -> None:
+    env, _ = fake_docker(tmp_path)
+    out = subprocess.run(["sh", "-c", commands.up("~/r", "demo", "1.0.0-x", "v2", together=True).wire()],
+                         capture_output=True, env=env, text=True)
+    listed = commands.started_containers(out.stdout)
+    assert [(c["id"], c["name"]) for c in listed] == [("c1", "demo-c1"), ("c2", "demo-c2")]
+    assert commands.started_containers("Container demo-driver-1  Started\n") is None   # nothing listed
+
+
+def test_a_failed_up_lists_nothing_so_its_error_stays_the_last_line(tmp_path: Path) -> None:
+    env, log = fake_docker(tmp_path)
+    cmd = commands.up("~/r", "demo", "1.0.0-x", "v2", together=True)
+    out = subprocess.run(["sh", "-c", cmd.wire()], capture_output=True, text=True,
+                         env={**env, "DOCKER_FAIL": "compose -p demo -f compose.yml up --no-start --remove-orphans"})
+    assert out.returncode == 5
+    assert "@@started" not in out.stdout and not any(c.startswith("inspect") for c in log.read_text().splitlines())
 
 
 def test_a_container_that_fails_to_start_fails_the_together_start(tmp_path: Path) -> None:

@@ -190,3 +190,21 @@ def test_watching_is_true_only_while_each_waiting_service_has_a_running_watch() 
     assert poller.watching((driver, perception), {"driver": "health starting"})
     poller.watches["driver"].set_result(3)                  # ended: poll at the normal pace
     assert not poller.watching((driver, perception), {"driver": "health starting"})
+
+
+def test_the_containers_up_listed_are_the_first_poll_with_no_round_trip() -> None:
+    from rosdeploy.health import Poller, started_containers
+    t = Scripted([[c("driver", health="unhealthy"), c("perception")]])     # what a poll would read
+    listed = "\n".join(["Container demo-driver-1  Started", "", "@@started",
+                        json.dumps({**c("driver"), "id": "d1"}), json.dumps({**c("perception"), "id": "p1"})])
+    ran: list[str] = []
+    answer = t.run
+    t.run = lambda command: (ran.append(command.label.split()[0]), answer(command))[1]   # type: ignore[method-assign]
+    poller = Poller(t, SPEC, watch=True)
+    poller.seed(started_containers(listed))
+    seeded, failure = poller.poll(("driver", "perception"))
+    assert failure is None and [x.id for x in seeded] == ["d1", "p1"]
+    assert ran == []                                       # nothing ran on the robot
+    _, failure = poller.poll(("driver", "perception"))     # the seed is used once: this one reads
+    assert ran == ["containers"]
+    assert failure == ("driver", "container demo-driver-1 health check reports unhealthy")
