@@ -119,9 +119,18 @@ def state(root: str, project: str, devices: tuple[str, ...] = (), compose: str =
 
 
 LOCK_SCRIPT = _PROLOGUE + r'''
-owner=$1; break_stale=$2
+owner=$1; break_stale=$2; dead_run=${3:-}
 mkdir -p "$dir/releases" "$dir/logs" || { echo "cannot create $dir (owned by another user?)" >&2; exit 1; }
-if [ "$break_stale" = yes ]; then rm -rf "$dir/.lock"; fi
+if [ "$break_stale" = yes ]; then rm -rf "$dir/.lock" "$dir/.lock-break"; fi
+if [ -n "$dead_run" ] && mkdir "$dir/.lock-break" 2>/dev/null; then
+  # Remove the lock of a run the caller proved dead, and only that lock. .lock-break keeps
+  # out a second run that found it dead too: that one then finds the lock held by us.
+  if grep -qF "\"run\": \"$dead_run\"" "$dir/.lock/owner" 2>/dev/null; then rm -rf "$dir/.lock"; fi
+  taken=no
+  if mkdir "$dir/.lock" 2>/dev/null; then printf '%s\n' "$owner" > "$dir/.lock/owner"; taken=yes; fi
+  rmdir "$dir/.lock-break"
+  if [ $taken = yes ]; then echo locked; exit 0; fi
+fi
 if mkdir "$dir/.lock" 2>/dev/null; then
   printf '%s\n' "$owner" > "$dir/.lock/owner"
   echo locked
@@ -141,10 +150,11 @@ if grep -qF "$token" "$dir/.lock/owner" 2>/dev/null; then rm -rf "$dir/.lock"; f
 '''
 
 
-def lock(root: str, project: str, owner: dict, break_stale: bool = False) -> Command:
-    """mkdir is atomic on every filesystem: the lock is a directory holding its owner."""
+def lock(root: str, project: str, owner: dict, break_stale: bool = False, dead_run: str = "") -> Command:
+    """mkdir is atomic on every filesystem: the lock is a directory holding its owner.
+    `dead_run`: the run id of a holder proven dead; its lock (only) is removed first."""
     return script("lock", LOCK_SCRIPT, root, project, json.dumps(owner, sort_keys=True),
-                  "yes" if break_stale else "no")
+                  "yes" if break_stale else "no", dead_run)
 
 
 def unlock(root: str, project: str, token: str) -> Command:

@@ -25,6 +25,7 @@ from rosdeploy.errors import CommandFailed, ConnectError, RemoteError
 from rosdeploy.health import (Poller, Verdict, diagnose, expected_services, settled, start_levels,
                               started_containers, wait_healthy)
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
+from rosdeploy.owner import Controller, dead_run, record, this_controller
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
 from rosdeploy.robot import (RobotState, parse_state, passed_gate, previous_release, release_for_version,
@@ -46,6 +47,7 @@ class RunContext:
     cancel: threading.Event = field(default_factory=threading.Event)
     lock_wait: float = 0.0
     break_lock: bool = False
+    controller: Controller = field(default_factory=this_controller)   # this machine, for lock owners
     connect: Callable[[Host, SSHOptions], Transport] = connect
 
 
@@ -117,20 +119,35 @@ class RobotRun:
         return parse_state(out.stdout)
 
     def lock(self) -> str | None:
-        """Take the robot's lock; None when taken, else who holds it."""
-        owner = {"run": self.ctx.run_id, "by": self.ctx.operator, "since": now(), "pid": os.getpid()}
+        """Take the robot's lock; None when taken, else who holds it. A lock left by a run
+        of this machine that is certainly dead is taken over, and the run's steps say so."""
+        owner = record(self.ctx.run_id, self.ctx.operator, now(), self.ctx.controller, os.getpid())
         deadline = time.monotonic() + self.ctx.lock_wait
+        dead: tuple[str, str] | None = None     # (run, why): a holder this machine knows is gone
+        tried: set[str] = set()                 # dead runs named once already
         with self.step("lock"):
             while True:
-                out = self.t.run(commands.lock(self.root, self.spec.project, owner, self.ctx.break_lock))
+                out = self.t.run(commands.lock(self.root, self.spec.project, owner, self.ctx.break_lock,
+                                               dead[0] if dead else ""))
                 if out.ok:
                     self.locked = True
-                    return None
+                    break
                 if out.exited != 3:
                     raise CommandFailed(self.host.name, out, "lock")
+                holder = out.stdout.replace("held ", "", 1).strip() or out.stderr.strip()
+                dead = dead_run(holder, self.ctx.controller)
+                if dead and dead[0] not in tried:
+                    tried.add(dead[0])          # at once again, removing that run's lock
+                    continue
+                dead = None
                 if time.monotonic() >= deadline or self.ctx.cancel.is_set():
-                    return out.stdout.replace("held ", "", 1).strip() or out.stderr.strip()
+                    return holder
                 time.sleep(1.0)
+        if dead:
+            detail = f"run {dead[0]}: {dead[1]}"
+            self.ctx.progress(self.host.name, f"took over the lock of a dead run ({detail})")
+            self.steps.append(Step("took over a dead run's lock", 0.0, detail=detail))
+        return None
 
     def unlock(self) -> None:
         try:

@@ -282,6 +282,7 @@ def _spawn_lock(path: Path) -> Iterator[None]:
 def _spawn(path: Path, persist: float) -> subprocess.Popen:
     with contextlib.suppress(FileNotFoundError):
         path.unlink()     # a keeper that died left its socket behind: nobody answers on it
+    remove_old_builds(path)
     log = os.open(path.with_suffix(".log"), os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
     # This very rosdeploy, also when it runs from a checkout rather than an installed package.
     package_root = str(Path(__file__).resolve().parents[1])
@@ -294,6 +295,23 @@ def _spawn(path: Path, persist: float) -> subprocess.Popen:
         raise KeeperUnavailable(f"cannot start the connection keeper: {exc}") from exc
     finally:
         os.close(log)
+
+
+def remove_old_builds(path: Path) -> None:
+    """Each rosdeploy build has its own keeper files; remove those of other builds whose
+    keeper is gone (nobody answers, nobody is starting one), so upgrades leave nothing."""
+    for lock in path.parent.glob("keeper-*.lock"):
+        if lock == path.with_suffix(".lock"):
+            continue
+        sock = _try_dial(lock.with_suffix(".sock"))
+        if sock is not None:      # that build's keeper still runs: it removes its socket itself
+            sock.close()
+            continue
+        with contextlib.suppress(OSError), open(lock, "a") as held:
+            fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)      # OSError: starting one now
+            for old in (lock.with_suffix(".sock"), lock.with_suffix(".log"), lock):
+                with contextlib.suppress(FileNotFoundError):
+                    old.unlink()
 
 
 def ask(message: dict) -> dict | None:

@@ -6,6 +6,8 @@ only what rosdeploy says.
 from __future__ import annotations
 
 import json
+import os
+import shlex
 import subprocess
 import time
 from pathlib import Path
@@ -13,6 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from rosdeploy import owner
 from rosdeploy import sim as simulator
 from rosdeploy.errors import EXIT_ABORTED, EXIT_OK, EXIT_PARTIAL
 from robots import RobotShell, all_healthy, identity, rosdeploy, shells, versions, write_fleet, write_inventory
@@ -198,6 +201,31 @@ def test_locked_robot_is_not_deployed_twice(fleet, fleet_file: Path) -> None:
     assert RobotShell(fleet, "robot1").containers() == {}
     broke = deploy(fleet_file, "--limit", "robot1", "--break-lock")
     assert broke.host("robot1")["outcome"] == "deployed"
+
+
+def _lock_robot1_as(pid: int) -> None:
+    """robot1 locked as a run of this machine with this pid would have locked it."""
+    held = owner.record("20261122-000000-run000", "ops@this-machine", "2026-11-22T00:00:00+00:00",
+                        owner.this_controller(), pid)
+    simulator.robot_exec("robot1", ["su", "robot", "-c", "mkdir -p ~/rosdeploy/demo/.lock && printf '%s\\n' "
+                                    f"{shlex.quote(json.dumps(held, sort_keys=True))} > ~/rosdeploy/demo/.lock/owner"])
+
+
+def test_a_lock_left_by_a_dead_run_of_this_machine_is_taken_over(fleet, fleet_file: Path) -> None:
+    _lock_robot1_as(os.getpid())                  # a live run of this machine: left alone
+    live = deploy(fleet_file, "--limit", "robot1")
+    assert live.host("robot1")["outcome"] == "locked" and RobotShell(fleet, "robot1").containers() == {}
+    child = subprocess.Popen(["true"])            # a run killed with -9: its pid is gone now
+    child.wait()
+    _lock_robot1_as(child.pid)
+    run = deploy(fleet_file, "--limit", "robot1")
+    assert run.code == EXIT_OK, run.stderr
+    result = run.host("robot1")
+    assert result["outcome"] == "deployed"
+    took = [s for s in result["steps"] if s["name"] == "took over a dead run's lock"]
+    assert took and f"process {child.pid} on this machine is gone" in took[0]["detail"]
+    shell = RobotShell(fleet, "robot1")
+    assert shell.run("ls -A ~/rosdeploy/demo | grep -c '^.lock' || true").strip() == "0", "no lock left"
 
 
 @pytest.mark.parametrize("user,compose,home", [("root", "v2", "/root"), ("robot", "v1", "/home/robot")])

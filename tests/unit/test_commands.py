@@ -68,6 +68,27 @@ def test_break_lock_takes_a_stale_lock(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "r/demo/.lock/owner").read_text())["run"] == "new"
 
 
+def test_a_dead_runs_lock_is_taken_over_and_only_that_lock(tmp_path: Path) -> None:
+    run_local(commands.lock("~/r", "demo", {"run": "run-A"}), tmp_path)
+    # run-B's lock is not the dead run's: it stays, and the caller learns who holds it
+    held = run_local(commands.lock("~/r", "demo", {"run": "run-C"}, dead_run="run-B"), tmp_path)
+    assert held.returncode == 3 and b'"run": "run-A"' in held.stdout
+    taken = run_local(commands.lock("~/r", "demo", {"run": "run-C"}, dead_run="run-A"), tmp_path)
+    assert taken.returncode == 0 and taken.stdout.strip() == b"locked"
+    assert json.loads((tmp_path / "r/demo/.lock/owner").read_text())["run"] == "run-C"
+    assert not (tmp_path / "r/demo/.lock-break").exists()
+    # a second run that also found run-A dead must not remove run-C's lock
+    again = run_local(commands.lock("~/r", "demo", {"run": "run-D"}, dead_run="run-A"), tmp_path)
+    assert again.returncode == 3 and json.loads((tmp_path / "r/demo/.lock/owner").read_text())["run"] == "run-C"
+
+
+def test_a_take_over_in_progress_keeps_other_breakers_out(tmp_path: Path) -> None:
+    run_local(commands.lock("~/r", "demo", {"run": "run-A"}), tmp_path)
+    (tmp_path / "r/demo/.lock-break").mkdir()         # another run is taking over right now
+    out = run_local(commands.lock("~/r", "demo", {"run": "run-C"}, dead_run="run-A"), tmp_path)
+    assert out.returncode == 3 and json.loads((tmp_path / "r/demo/.lock/owner").read_text())["run"] == "run-A"
+
+
 def test_upload_lands_whole_with_modes_and_leaves_no_temp(tmp_path: Path) -> None:
     data = tarball({"compose.yml": ("services: {}\n", 0o644), ".env": ("TOKEN=s3cret\n", 0o600)})
     assert run_local(commands.upload("~/r", "demo", "1.0.0-abc", data), tmp_path).returncode == 0

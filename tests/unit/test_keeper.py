@@ -338,3 +338,23 @@ def test_a_keeper_that_cannot_start_is_given_up_at_once(tmp_path: Path, monkeypa
     with pytest.raises(keeper.KeeperUnavailable, match="did not start"):
         keeper.dial(5)
     assert time.monotonic() - started < keeper.SPAWN_WAIT / 2
+
+
+def test_starting_a_keeper_removes_the_files_of_other_builds_whose_keeper_is_gone(tmp_path: Path) -> None:
+    import fcntl
+    import socket as sockets
+    ours = tmp_path / "keeper-new.sock"
+    for build in ("gone", "starting", "running"):
+        for suffix in (".lock", ".log"):
+            (tmp_path / f"keeper-{build}{suffix}").write_text("")
+    (tmp_path / "keeper-gone.sock").write_text("")                  # left by a keeper that died
+    running = sockets.socket(sockets.AF_UNIX)
+    running.bind(str(tmp_path / "keeper-running.sock"))
+    running.listen()
+    with open(tmp_path / "keeper-starting.lock") as starting:       # another caller spawns that build now
+        fcntl.flock(starting, fcntl.LOCK_EX)
+        keeper.remove_old_builds(ours)
+    running.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "keeper-running.lock", "keeper-running.log", "keeper-running.sock",
+        "keeper-starting.lock", "keeper-starting.log"]

@@ -154,3 +154,49 @@ def test_interrupt_between_waves_skips_the_rest_and_reports(monkeypatch) -> None
 ])
 def test_release_services_come_from_the_manifest_or_not_at_all(text: str, services) -> None:
     assert release_services(text) == services
+
+
+class LockHeld:
+    """A robot whose lock is held by `holder` until a lock call names its run as dead."""
+
+    def __init__(self, holder: dict) -> None:
+        self.holder, self.calls = holder, []
+
+    def run(self, command):
+        from rosdeploy.transport import Result
+        self.calls.append(command.argv[-1])             # the dead run id the call names ("" for none)
+        if command.argv[-1] == self.holder["run"]:
+            return Result("lock", "locked\n", "", 0, 0.0)
+        return Result("lock", "held " + json.dumps(self.holder), "", 3, 0.0)
+
+
+def _lock_with(holder: dict, alive: bool, monkeypatch) -> tuple[object, str | None, LockHeld]:
+    import threading
+
+    from rosdeploy import owner
+    from rosdeploy.deploy import RobotRun, RunContext
+    from rosdeploy.model import FleetSpec, Service
+    monkeypatch.setattr(owner, "pid_alive", lambda pid: alive)
+    spec = FleetSpec(path="f", project="p", inventory="i", registry="r", version="1", services=(Service("s", "img", "1"),))
+    ctx = RunContext(spec=spec, ssh=None, run_id="run-new", operator="me", cancel=threading.Event(),
+                     controller=owner.Controller("b1", "ns1"))
+    run = RobotRun(ctx, host("r1"))
+    run.t = LockHeld(holder)
+    return run, run.lock(), run.t
+
+
+def test_a_lock_left_by_a_dead_run_of_this_machine_is_taken_over(monkeypatch) -> None:
+    holder = {"run": "run-old", "by": "me", "pid": 4242, "boot": "b1", "pid_namespace": "ns1"}
+    run, held_by, robot = _lock_with(holder, alive=False, monkeypatch=monkeypatch)
+    assert held_by is None and run.locked
+    assert robot.calls == ["", "run-old"]              # asked once, then named the dead run
+    took = [s for s in run.steps if s.name == "took over a dead run's lock"]
+    assert took and "run-old" in took[0].detail and "4242" in took[0].detail
+
+
+def test_a_lock_of_a_live_run_or_another_machine_is_left_alone(monkeypatch) -> None:
+    for holder, alive in [({"run": "run-old", "pid": 4242, "boot": "b1", "pid_namespace": "ns1"}, True),
+                          ({"run": "run-old", "pid": 4242, "boot": "b9", "pid_namespace": "ns1"}, False)]:
+        run, held_by, robot = _lock_with(holder, alive, monkeypatch)
+        assert held_by is not None and "run-old" in held_by and not run.locked
+        assert robot.calls == [""]
