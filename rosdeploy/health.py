@@ -46,14 +46,17 @@ def expected_services(spec: FleetSpec) -> tuple[str, ...]:
 
 
 def read_containers(t: Transport, project: str, names: tuple[str, ...] = ()) -> tuple[Container, ...]:
-    result = t.run(commands.containers(project, names))
-    return tuple(Container.from_json(c) for c in commands.parse_containers(result.stdout))
+    return _containers(commands.parse_containers(t.run(commands.containers(project, names)).stdout))
 
 
 def started_containers(up_output: str) -> tuple[Container, ...] | None:
     """What `up` read of the project's containers right after starting them."""
     listed = commands.started_containers(up_output)
-    return None if listed is None else tuple(Container.from_json(c) for c in listed)
+    return None if listed is None else _containers(listed)
+
+
+def _containers(listed: tuple[dict, ...]) -> tuple[Container, ...]:
+    return tuple(Container.from_json(c) for c in listed)
 
 
 def start_levels(spec: FleetSpec) -> tuple[tuple[str, ...], ...]:
