@@ -72,8 +72,17 @@ def _serving(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
     k = keeper.Keeper(path, persist=persist)
     thread = threading.Thread(target=k.serve, daemon=True)
     thread.start()
-    _wait_for(path.exists)
+    _wait_for(lambda: _listening(path))   # the socket file exists from bind(), before listen()
     return k, path, thread
+
+
+def _listening(path: Path) -> bool:
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+        try:
+            probe.connect(str(path))
+        except OSError:
+            return False
+    return True
 
 
 def _wait_for(predicate, seconds: float = 5.0) -> None:
