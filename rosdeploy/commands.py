@@ -67,7 +67,6 @@ ps_json() {
   fi
   docker ps -a --filter "label=com.docker.compose.project=$project" --format '{"name":{{json .Names}},"service":{{json (.Label "com.docker.compose.service")}},"image":{{json .Image}},"status":{{json .State}},"ps_status":{{json .Status}},"workdir":{{json (.Label "com.docker.compose.project.working_dir")}},"compose":{{json (.Label "com.docker.compose.version")}}}' 2>/dev/null
 }
-ps_json
 """
 
 # Shell built-ins for the small files: each program started (cat, ls, grep) is a fork
@@ -77,8 +76,10 @@ show() { [ -r "$1" ] || return 0; while IFS= read -r line || [ -n "$line" ]; do 
 contains() { case $(show "$1") in *"$2"*) return 0 ;; esac; return 1; }
 """
 
-STATE_SCRIPT = _PROLOGUE + _FILES + r"""
-mode=$1; want_compose=$2; want_gpu=$3; shift 3
+# The state's sections, for `mode` quick (no-op and status: files and containers), full
+# (also the preflight facts) or switch (a rollback's: files and the kept releases'
+# manifests; no container list, whose `docker ps` is a Go program's start on the robot).
+_STATE_SECTIONS = _PS + r"""
 section() { printf '\n@@%s\n' "$1"; }
 section home; printf '%s\n' "$HOME"
 section dir; printf '%s\n' "$dir"
@@ -87,8 +88,11 @@ section manifest; show "$dir/current/manifest.json"
 section lock; show "$dir/.lock/owner"
 section releases; for r in "$dir"/releases/*; do [ -e "$r" ] && printf '%s\n' "${r##*/}"; done
 section history; tail -n 50 "$dir/history.jsonl" 2>/dev/null || true
-section containers
-""" + _PS + r"""
+if [ "$mode" = switch ]; then
+  for r in "$dir"/releases/*; do [ -r "$r/manifest.json" ] && { section "manifest ${r##*/}"; show "$r/manifest.json"; }; done
+else
+  section containers; ps_json
+fi
 if [ "$mode" = full ]; then
   section docker; docker version --format '{{.Server.Version}}' 2>&1 || true
   section compose
@@ -106,6 +110,10 @@ fi
 section end
 """
 
+STATE_SCRIPT = _PROLOGUE + _FILES + r"""
+mode=$1; want_compose=$2; want_gpu=$3; shift 3
+""" + _STATE_SECTIONS
+
 
 def state(root: str, project: str, devices: tuple[str, ...] = (), compose: str = "auto",
           gpu: bool = False, full: bool = True) -> Command:
@@ -118,29 +126,45 @@ def state(root: str, project: str, devices: tuple[str, ...] = (), compose: str =
                   "full" if full else "quick", compose, "yes" if gpu else "no", *devices)
 
 
-LOCK_SCRIPT = _PROLOGUE + r'''
-owner=$1; break_stale=$2; dead_run=${3:-}
-mkdir -p "$dir/releases" "$dir/logs" || { echo "cannot create $dir (owned by another user?)" >&2; exit 1; }
-if [ "$break_stale" = yes ]; then rm -rf "$dir/.lock" "$dir/.lock-break"; fi
-if [ -n "$dead_run" ] && mkdir "$dir/.lock-break" 2>/dev/null; then
-  # Remove the lock of a run the caller proved dead, and only that lock. .lock-break keeps
-  # out a second run that found it dead too: that one then finds the lock held by us.
-  if grep -qF "\"run\": \"$dead_run\"" "$dir/.lock/owner" 2>/dev/null; then rm -rf "$dir/.lock"; fi
-  taken=no
-  if mkdir "$dir/.lock" 2>/dev/null; then printf '%s\n' "$owner" > "$dir/.lock/owner"; taken=yes; fi
-  rmdir "$dir/.lock-break"
-  if [ $taken = yes ]; then echo locked; exit 0; fi
-fi
-if mkdir "$dir/.lock" 2>/dev/null; then
-  printf '%s\n' "$owner" > "$dir/.lock/owner"
-  echo locked
-elif [ -d "$dir/.lock" ]; then
-  printf 'held '; cat "$dir/.lock/owner" 2>/dev/null || echo '{}'
-  exit 3
-else
-  echo "cannot create the lock $dir/.lock: check the deploy root's owner and permissions" >&2
-  exit 1
-fi
+# take_lock OWNER BREAK_STALE DEAD_RUN: prints `locked` (0) or `held <owner>` (3).
+_LOCK = r'''
+take_lock() {
+  owner=$1; break_stale=$2; dead_run=${3:-}
+  mkdir -p "$dir/releases" "$dir/logs" || { echo "cannot create $dir (owned by another user?)" >&2; return 1; }
+  if [ "$break_stale" = yes ]; then rm -rf "$dir/.lock" "$dir/.lock-break"; fi
+  if [ -n "$dead_run" ] && mkdir "$dir/.lock-break" 2>/dev/null; then
+    # Remove the lock of a run the caller proved dead, and only that lock. .lock-break keeps
+    # out a second run that found it dead too: that one then finds the lock held by us.
+    if grep -qF "\"run\": \"$dead_run\"" "$dir/.lock/owner" 2>/dev/null; then rm -rf "$dir/.lock"; fi
+    taken=no
+    if mkdir "$dir/.lock" 2>/dev/null; then printf '%s\n' "$owner" > "$dir/.lock/owner"; taken=yes; fi
+    rmdir "$dir/.lock-break"
+    if [ $taken = yes ]; then echo locked; return 0; fi
+  fi
+  if mkdir "$dir/.lock" 2>/dev/null; then
+    printf '%s\n' "$owner" > "$dir/.lock/owner"
+    echo locked
+  elif [ -d "$dir/.lock" ]; then
+    printf 'held '; cat "$dir/.lock/owner" 2>/dev/null || echo '{}'
+    return 3
+  else
+    echo "cannot create the lock $dir/.lock: check the deploy root's owner and permissions" >&2
+    return 1
+  fi
+}
+'''
+
+LOCK_SCRIPT = _PROLOGUE + _LOCK + r'''
+take_lock "$@"
+'''
+
+# A rollback's first round trip: the lock, then the state read under it (what it shows
+# cannot change before the switch), with the kept releases' manifests.
+LOCKED_STATE_SCRIPT = _PROLOGUE + _FILES + _LOCK + r'''
+take_lock "$1" "$2" "$3"; locked=$?
+mode=switch; shift 3
+''' + _STATE_SECTIONS + r'''
+exit $locked
 '''
 
 UNLOCK_SCRIPT = _PROLOGUE + r'''
@@ -154,6 +178,13 @@ def lock(root: str, project: str, owner: dict, break_stale: bool = False, dead_r
     """mkdir is atomic on every filesystem: the lock is a directory holding its owner.
     `dead_run`: the run id of a holder proven dead; its lock (only) is removed first."""
     return script("lock", LOCK_SCRIPT, root, project, json.dumps(owner, sort_keys=True),
+                  "yes" if break_stale else "no", dead_run)
+
+
+def locked_state(root: str, project: str, owner: dict, break_stale: bool = False, dead_run: str = "") -> Command:
+    """`lock`, then the state as a rollback needs it (the lock's answer comes first, before
+    the sections): one round trip where a rollback made three (state, lock, manifest)."""
+    return script("lock+state", LOCKED_STATE_SCRIPT, root, project, json.dumps(owner, sort_keys=True),
                   "yes" if break_stale else "no", dead_run)
 
 
@@ -297,27 +328,35 @@ def health_test(container: str, test: tuple[str, ...], timeout: float) -> Comman
 
 
 # Runs inside the container: the health test again and again with no `docker exec` per
-# try (an exec costs ~70 ms of robot CPU, the demo's test ~3 ms). A test that takes
-# whole seconds (a `ros2` CLI call, say) is spaced by its own duration, so the loop keeps
-# the robot at most half busy with it, and those seconds count against the tries.
+# try (an exec costs ~70 ms of robot CPU, the demo's test ~3 ms). A test that takes longer
+# than `every` (a `ros2` CLI call, say) is spaced by its own duration, so the loop keeps
+# the robot at most half busy with it, and that time counts against the tries.
 # Exit 0: it passed; 3: still failing when the tries ran out; anything else: it cannot
 # run this way (no /bin/sh in the image, or the container is gone).
 HEALTH_WATCH_SCRIPT = r'''
 tries=$1; every=$2; per_second=$3; kind=$4; shift 4
-# The clock in whole seconds, into $now. /proc/uptime is read by the shell itself: a
-# `$(date)` is two processes per reading, and this loop reads twice a try on every
-# starting container of every robot while the nodes themselves start.
+# The clock in hundredths of a second, into $now. /proc/uptime is read by the shell itself
+# (a `$(date)` is two processes, on every starting container while the nodes start).
+# Whole seconds would not do: a 3 ms try that crosses a second's boundary would count
+# as a 1 s one and wait a second more before the next try.
 now() {
-  if read -r now _ 2>/dev/null </proc/uptime; then now=${now%.*}; else now=$(date +%s 2>/dev/null || echo 0); fi
+  if read -r now _ 2>/dev/null </proc/uptime; then
+    cs=${now#*.}; now=$(( ${now%.*} * 100 + ${cs#0} ))
+  else
+    now=$(( $(date +%s 2>/dev/null || echo 0) * 100 ))
+  fi
 }
 while :; do
   now; before=$now
   if [ "$kind" = CMD-SHELL ]; then /bin/sh -c "$1"; else "$@"; fi >/dev/null 2>&1 && exit 0
   now; took=$((now - before))
-  tries=$((tries - 1 - 2 * took * per_second))
+  tries=$((tries - 1 - 2 * took * per_second / 100))
   [ "$tries" -gt 0 ] || exit 3
-  sleep "$every"
-  [ "$took" -le 0 ] || sleep "$took"
+  if [ "$took" -gt $((100 / per_second)) ]; then
+    sleep "$((took / 100)).$((took / 10 % 10))$((took % 10))"
+  else
+    sleep "$every"
+  fi
 done
 '''
 

@@ -30,7 +30,7 @@ from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, S
                                UNCHANGED, UNREACHABLE, HostResult, Step)
 from rosdeploy.robot import (RobotState, parse_state, passed_gate, previous_release, release_for_version,
                             release_services, unhealthy_services)
-from rosdeploy.transport import SSHOptions, Transport, connect
+from rosdeploy.transport import Result, SSHOptions, Transport, connect
 
 Progress = Callable[[str, str], None]   # (robot, what is happening)
 
@@ -119,35 +119,46 @@ class RobotRun:
         return parse_state(out.stdout)
 
     def lock(self) -> str | None:
-        """Take the robot's lock; None when taken, else who holds it. A lock left by a run
-        of this machine that is certainly dead is taken over, and the run's steps say so."""
+        """Take the robot's lock; None when taken, else who holds it."""
+        return self._lock(lambda owner, dead: commands.lock(self.root, self.spec.project, owner,
+                                                             self.ctx.break_lock, dead), "lock")[0]
+
+    def lock_and_read(self) -> tuple[str | None, RobotState]:
+        """The lock and, read under it, the state a rollback needs, in one round trip."""
+        holder, out = self._lock(lambda owner, dead: commands.locked_state(self.root, self.spec.project, owner,
+                                                                           self.ctx.break_lock, dead), "lock+state")
+        return holder, parse_state(out.stdout)
+
+    def _lock(self, command: Callable[[dict, str], commands.Command], step: str) -> tuple[str | None, Result]:
+        """Run a lock command until it takes the lock (holder None) or lock_wait ends. A lock
+        left by a run of this machine that is certainly dead is taken over, and the steps say so."""
         owner = record(self.ctx.run_id, self.ctx.operator, now(), self.ctx.controller, os.getpid())
         deadline = time.monotonic() + self.ctx.lock_wait
         dead: tuple[str, str] | None = None     # (run, why): a holder this machine knows is gone
         tried: set[str] = set()                 # dead runs named once already
-        with self.step("lock"):
+        with self.step(step):
             while True:
-                out = self.t.run(commands.lock(self.root, self.spec.project, owner, self.ctx.break_lock,
-                                               dead[0] if dead else ""))
+                out = self.t.run(command(owner, dead[0] if dead else ""))
                 if out.ok:
                     self.locked = True
                     break
                 if out.exited != 3:
-                    raise CommandFailed(self.host.name, out, "lock")
-                holder = out.stdout.replace("held ", "", 1).strip() or out.stderr.strip()
+                    raise CommandFailed(self.host.name, out, step)
+                answer = out.stdout.split("\n@@", 1)[0]   # a locked_state's sections follow
+                holder = answer.replace("held ", "", 1).strip() or out.stderr.strip()
                 dead = dead_run(holder, self.ctx.controller)
                 if dead and dead[0] not in tried:
                     tried.add(dead[0])          # at once again, removing that run's lock
                     continue
                 dead = None
                 if time.monotonic() >= deadline or self.ctx.cancel.is_set():
-                    return holder
+                    return holder, out
                 time.sleep(1.0)
         if dead:
             detail = f"run {dead[0]}: {dead[1]}"
             self.ctx.progress(self.host.name, f"took over the lock of a dead run ({detail})")
             self.steps.append(Step("took over a dead run's lock", 0.0, detail=detail))
-        return None
+        return None, out
 
     def unlock(self) -> None:
         try:
@@ -312,10 +323,12 @@ def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: di
                                     services), "upload")
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before switching", **base)
-    verdict = run.start(new, state.flavor or "v2")
+    flavor = state.flavor or "v2"
+    verdict = run.start(new, flavor)
     if verdict.ok:
+        # `compose`: what a later rollback switches with, without listing the containers
         run.activate(new, {"event": "deploy", "release": new, "version": release.version,
-                           "digest": release.digest, "from": old, "result": "active"})
+                           "digest": release.digest, "from": old, "result": "active", "compose": flavor})
         return run.result(DEPLOYED, running_release=new, reason=verdict.reason, **base)
     return _recover(run, release, state, verdict, base)
 
@@ -337,7 +350,8 @@ def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict
                           reason=why + "; no previous release on the robot, so the failed one was stopped", **failed)
     back = run.start(old, state.flavor or "v2", together=True, services=run.kept_services(old))
     run.history({"event": "auto-rollback", "release": old, "rolled_back_from": new,
-                 "result": "active" if back.ok else "unhealthy", "reason": verdict.reason})
+                 "result": "active" if back.ok else "unhealthy", "reason": verdict.reason,
+                 "compose": state.flavor or "v2"})
     if back.ok:
         return run.result(ROLLED_BACK, running_release=old, reason=why + f"; rolled back to {old}", **failed)
     return run.result(FAILED, running_release=old, reason=why + f"; rollback to {old} is unhealthy too: "
@@ -392,37 +406,44 @@ def rollback_host(ctx: RunContext, host: Host, to_version: str | None = None,
         run.close()
 
 
-def _rollback_state(run: RobotRun) -> tuple[RobotState, str | None]:
-    """The state a rollback needs and the compose flavour to switch with. Quick when the
-    running containers' labels tell the flavour: an emergency skips the preflight facts."""
-    state = run.read_state(full=False, step="state")
-    flavor = state.running_flavor
-    if flavor is not None and run.compose_pref in ("auto", flavor):
-        return state, flavor
-    state = run.read_state()
-    return state, state.flavor
+def _rollback_flavor(run: RobotRun, state: RobotState) -> str | None:
+    """The compose flavour to switch with: as the history recorded it, else as the running
+    containers' labels tell it (quick), else the full state's (an emergency skips the
+    preflight facts when it can)."""
+    def usable(known: str | None) -> bool:
+        return known is not None and run.compose_pref in ("auto", known)
+    if usable(state.recorded_flavor):
+        return state.recorded_flavor
+    running = run.read_state(full=False, step="state").running_flavor
+    return running if usable(running) else run.read_state().flavor
+
+
+def rollback_target(state: RobotState, to_version: str | None, to_release: str | None) -> str | None:
+    if to_release:
+        return to_release if to_release in state.releases else None
+    return release_for_version(state, to_version) if to_version else previous_release(state)
 
 
 def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> HostResult:
-    state, flavor = _rollback_state(run)
-    if to_release:
-        target = to_release if to_release in state.releases else None
-    else:
-        target = release_for_version(state, to_version) if to_version else previous_release(state)
+    holder, state = run.lock_and_read()
+    target = rollback_target(state, to_version, to_release)
     base = {"old_release": state.current, "new_release": target, "running_release": state.current}
+    if holder is not None:
+        return run.result(LOCKED, reason=f"locked by another run: {holder} (use --break-lock if it is stale)",
+                          **base)
     if target is None:
         kept = ", ".join(state.releases) or "none"
         what = f"no kept release of version {to_version}" if to_version else "no previous release"
         return run.result(FAILED, reason=f"{what} on the robot (kept: {kept})", **base)
+    flavor = _rollback_flavor(run, state)
     if flavor is None:
         return run.result(FAILED, reason="no docker compose on the robot", **base)
-    holder = run.lock()
-    if holder is not None:
-        return run.result(LOCKED, reason=f"locked by another run: {holder} (use --break-lock if it is stale)",
-                          **base)
-    verdict = run.start(target, flavor, together=passed_gate(state, target), services=run.kept_services(target))
+    manifest = state.kept_manifests.get(target)
+    verdict = run.start(target, flavor, together=passed_gate(state, target),
+                        services=release_services(manifest) if manifest is not None else None)
     run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
-                          "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback"})
+                          "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback",
+                          "compose": flavor})
     base["running_release"] = target
     if verdict.ok:
         return run.result(SWITCHED, reason=f"rolled back to {target}", **base)

@@ -13,12 +13,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
-from rosdeploy import checks
 from rosdeploy.errors import Problem, RenderError
 from rosdeploy.fleet import load_fleet
 from rosdeploy.inventory import Inventory, load_inventory
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
-from rosdeploy.render import Renderer
 from rosdeploy.vault import Vault
 
 # Scopes whose rules judge the inputs (fleet file + inventory) rather than a rendered release:
@@ -41,6 +39,8 @@ class Project:
         return frozenset().union(*(h.secret_values for h in self.inventory.hosts.values()))
 
 
+# `checks` and `render` (Jinja2) are imported where they are used: an emergency rollback
+# loads the project but renders and checks nothing, and each command is a new process.
 def load_project(fleet_path: str, *, inventory: str | None = None, version: str | None = None,
                  vault_password_file: str | None = None, prompt: Callable[[str], str] | None = None) -> Project:
     """Load the fleet file, then its inventory (decrypting vault files with the password sources)."""
@@ -55,6 +55,8 @@ def render_hosts(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, Ren
     A robot failing an input rule (a device or secret it lacks) is skipped: the rule
     already says what is wrong, in better words than the renderer could.
     """
+    from rosdeploy import checks
+    from rosdeploy.render import Renderer
     blocked = checks.blocked_hosts(project.spec, hosts)
     try:
         renderer = Renderer(project.spec)
@@ -83,6 +85,7 @@ def _same_on(p: Problem, robots: list[str]) -> Problem:
 
 def prepare(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
     """Render every robot once and run every rule on the result: releases and findings, errors first."""
+    from rosdeploy import checks
     releases, problems = render_hosts(project, hosts)
     return releases, sorted(problems + checks.run_checks(project, hosts, releases), key=checks.sort_key)
 
@@ -103,10 +106,12 @@ def gate(problems: Sequence[Problem]) -> list[Problem]:
 
 def render_blockers(project: Project, hosts: Sequence[Host]) -> list[Problem]:
     """Errors that keep some robot from being rendered at all (for `render`)."""
+    from rosdeploy import checks
     input_rules = [r for r in checks.RULES.values() if r.scope == "host" and r.severity == "error"]
     return checks.run_checks(project, hosts, {}, rules=input_rules)
 
 
 def _is_input_rule(p: Problem) -> bool:
+    from rosdeploy import checks
     rule: Any = checks.RULES.get(p.rule)
     return rule is not None and rule.scope in INPUT_SCOPES

@@ -7,7 +7,7 @@ their output. That keeps every decision unit-testable without SSH.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping
 
 from rosdeploy.commands import parse_containers, parse_sections
@@ -70,6 +70,7 @@ class RobotState:
     free_mb: int | None
     runtimes: Mapping[str, Any] | None   # docker runtimes when asked (gpu robots)
     missing_devices: tuple[str, ...]
+    kept_manifests: Mapping[str, str] = field(default_factory=dict)   # release -> manifest text (switch state)
 
     @property
     def flavor(self) -> str | None:
@@ -81,6 +82,15 @@ class RobotState:
         quick state can tell it without the ~0.1 CPU-s `docker compose version`."""
         majors = {c.compose.split(".", 1)[0] for c in self.containers if c.compose}
         return {frozenset({"2"}): "v2", frozenset({"1"}): "v1"}.get(frozenset(majors))
+
+    @property
+    def recorded_flavor(self) -> str | None:
+        """v1/v2 as the history says the current release was last started with: what the
+        containers' label would say, without listing them."""
+        for entry in reversed(self.history):
+            if entry.get("release") == self.current and entry.get("compose") in ("v1", "v2"):
+                return str(entry["compose"])
+        return None
 
 
 def parse_state(stdout: str) -> RobotState:
@@ -101,7 +111,8 @@ def parse_state(stdout: str) -> RobotState:
         free_mb=int(disk) if disk.isdigit() else None,
         runtimes=_json(s.get("gpu")),
         missing_devices=tuple(line.split(" ", 1)[1] for line in s.get("devices", "").splitlines()
-                              if line.startswith("missing ")))
+                              if line.startswith("missing ")),
+        kept_manifests={name.split(" ", 1)[1]: text for name, text in s.items() if name.startswith("manifest ")})
 
 
 def _json(text: str | None) -> Any:

@@ -12,7 +12,6 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
-from rosdeploy import checks
 from rosdeploy.cli.common import add_fleet_args
 from rosdeploy.errors import EXIT_INPUT, EXIT_OK, InputError, Problem
 from rosdeploy.model import Host, RenderedRelease
@@ -142,6 +141,7 @@ def cmd_check(args: argparse.Namespace, out: Output) -> int:
     colors = {"error": "red", "warning": "yellow", "info": "dim"}
     for p in problems:   # the findings are this command's output: stdout, so `check > report.txt` works
         out.line(out.paint(f"{p.severity}[{p.rule or 'input'}] {p}", colors.get(p.severity, "bold")))
+    from rosdeploy import checks
     counts = {s: sum(p.severity == s for p in problems) for s in checks.SEVERITIES}
     tally = ", ".join(f"{n} {s}(s)" for s, n in counts.items() if n) or "no findings"
     out.line(f"{'FAIL' if errors else 'OK'} {args.fleet}: {len(hosts)} robot(s), {tally}")
@@ -149,6 +149,7 @@ def cmd_check(args: argparse.Namespace, out: Output) -> int:
 
 
 def problem_json(p: Problem) -> dict[str, Any]:
+    from rosdeploy import checks
     rule = checks.RULES.get(p.rule)
     return {"severity": p.severity, "rule": p.rule or None, "file": p.file, "line": p.line, "key": p.key,
             "message": p.message, "fix": rule.fix if rule else None}

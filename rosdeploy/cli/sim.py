@@ -3,9 +3,15 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import TYPE_CHECKING
 
-from rosdeploy import sim
 from rosdeploy.output import Output
+
+if TYPE_CHECKING:
+    from rosdeploy import sim
+
+# `rosdeploy.sim` is imported by the handlers: every command builds the whole parser, and
+# the others (an emergency rollback among them) need none of it.
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,6 +42,7 @@ def _progress(out: Output):
 
 
 def cmd_up(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import sim
     started = time.monotonic()
     fleet = sim.up(robots=args.robots, progress=_progress(out))
     out.line(f"{len(fleet.robots)} robots up in {time.monotonic() - started:.1f} s")
@@ -49,12 +56,14 @@ def cmd_up(args: argparse.Namespace, out: Output) -> int:
 
 
 def cmd_down(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import sim
     sim.down(progress=_progress(out), purge=args.purge)
     out.line("simulated fleet removed")
     return 0
 
 
 def cmd_status(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import sim
     """Exit 0 when every robot runs and the registry answers, 3 otherwise."""
     current = sim.status()
     if out.as_json or args.status_json:

@@ -157,6 +157,30 @@ def test_upload_prepares_log_dirs_a_non_root_container_can_write(tmp_path: Path)
         assert mode == 0o1777
 
 
+def test_locked_state_takes_the_lock_then_reads_the_state_under_it(tmp_path: Path) -> None:
+    env, log = fake_docker(tmp_path)                       # a docker that logs any call
+    releases = tmp_path / "r/demo/releases"
+    (releases / "1.0.0-x/manifest.json").write_text('{"services": ["driver"]}\n')
+    (releases / "1.1.0-y").mkdir()                         # a release without a manifest
+    (tmp_path / "r/demo/current").symlink_to("releases/1.1.0-y")
+    (tmp_path / "r/demo/history.jsonl").write_text('{"release": "1.1.0-y", "compose": "v2"}\n')
+    cmd = commands.locked_state("~/r", "demo", {"run": "run-A"})
+    out = subprocess.run(["sh", "-c", cmd.wire()], capture_output=True, env=env, text=True)
+    assert out.returncode == 0 and out.stdout.split("\n@@", 1)[0].strip() == "locked"
+    sections = commands.parse_sections(out.stdout)
+    assert sections["current"].endswith("releases/1.1.0-y")
+    assert json.loads(sections["lock"])["run"] == "run-A"              # read under the lock it took
+    assert json.loads(sections["manifest 1.0.0-x"]) == {"services": ["driver"]}
+    assert "manifest 1.1.0-y" not in sections and "containers" not in sections
+    assert not log.exists(), "a rollback's first round trip starts no docker CLI"
+    # another run holding the lock: exit 3, its owner first, and the state all the same
+    held = subprocess.run(["sh", "-c", commands.locked_state("~/r", "demo", {"run": "run-B"}).wire()],
+                          capture_output=True, env=env, text=True)
+    assert held.returncode == 3
+    assert json.loads(held.stdout.split("\n@@", 1)[0].replace("held ", "", 1))["run"] == "run-A"
+    assert commands.parse_sections(held.stdout)["current"].endswith("releases/1.1.0-y")
+
+
 def test_a_lock_that_cannot_be_created_is_an_error_not_held(tmp_path: Path) -> None:
     (tmp_path / "r").mkdir()
     (tmp_path / "r" / "demo").write_text("a file where the project dir should be")
@@ -284,6 +308,18 @@ def test_health_watch_spaces_a_slow_check_by_its_own_duration(tmp_path) -> None:
     check = "echo x >> tries; sleep 1.05; exit 1"
     assert _watch_in_container(tmp_path, ("CMD-SHELL", check), window=2.0, every=0.5) == 3
     assert (tmp_path / "tries").read_text().count("x") == 1
+
+
+def test_health_watch_counts_a_sub_second_check_by_its_real_duration(tmp_path) -> None:
+    # 0.3 s per try, window 1.2 s every 0.1 s (12 tries): each try uses 1 + 2*0.3*10 = 7,
+    # so it runs twice, 0.6 s apart (its own duration, then as long again). A clock in whole
+    # seconds would call most of these tries 0 s long and run them every 0.1 s, and call one
+    # that crosses a second's boundary 1 s long and wait a whole second after it.
+    check = "read -r t _ </proc/uptime; echo $t >> tries; sleep 0.3; exit 1"
+    assert _watch_in_container(tmp_path, ("CMD-SHELL", check), window=1.2, every=0.1) == 3
+    starts = [float(t) for t in (tmp_path / "tries").read_text().split()]
+    assert len(starts) == 2
+    assert 0.55 <= starts[1] - starts[0] < 0.9
 
 
 ENGINE_API_LIST = [{"Id": "abc", "Names": ["/demo-driver-1"], "Image": "r:5000/demo/driver:1.0.0",

@@ -200,3 +200,82 @@ def test_a_lock_of_a_live_run_or_another_machine_is_left_alone(monkeypatch) -> N
         run, held_by, robot = _lock_with(holder, alive, monkeypatch)
         assert held_by is not None and "run-old" in held_by and not run.locked
         assert robot.calls == [""]
+
+
+@pytest.mark.parametrize("history,flavor", [
+    ([{**active("1.1.0-bbb"), "compose": "v1"}, {**active("1.0.0-aaa"), "compose": "v1"},
+      {**active("1.1.0-bbb"), "compose": "v2"}], "v2"),           # the last start of the current release
+    ([{**active("1.0.0-aaa"), "compose": "v2"}, active("1.1.0-bbb")], None),   # not recorded for current
+    ([{**active("1.1.0-bbb"), "compose": "v3"}], None),                      # not a flavour rosdeploy knows
+])
+def test_recorded_flavor_is_how_the_current_release_was_last_started(history: list, flavor: str | None) -> None:
+    assert parse_state(state_text(history=history)).recorded_flavor == flavor
+
+
+class Robot:
+    """A robot answering each command by its label: a rollback's round trips, without SSH."""
+
+    def __init__(self, history: list, containers: tuple = ()) -> None:
+        self.history, self.containers, self.calls = history, containers, []
+
+    def run(self, command):
+        from rosdeploy.transport import Result
+        label = command.label.split(" ", 1)[0]
+        self.calls.append(label)
+        out = ""
+        if label == "lock+state":
+            out = "locked\n" + state_text(history=self.history).replace(
+                "\n@@end", '\n@@manifest 1.0.0-aaa\n{"services": ["driver"]}\n@@end')
+        elif label == "state":
+            out = state_text(history=self.history, containers=self.containers)
+        elif label == "activate":
+            self.history.append(json.loads(command.argv[-2]))
+        return Result(command.label, out, "", 0, 0.0)
+
+    def check(self, command, what: str = ""):
+        return self.run(command)
+
+
+def _rolled_back(robot: Robot, monkeypatch, compose: str = "auto") -> tuple[object, dict]:
+    import threading
+
+    from rosdeploy import deploy
+    from rosdeploy.health import Verdict
+    from rosdeploy.model import FleetSpec, Service
+    spec = FleetSpec(path="f", project="demo", inventory="i", registry="r", version="1",
+                     services=(Service("driver", "img", "1"), Service("perception", "img", "1")))
+    ctx = deploy.RunContext(spec=spec, ssh=None, run_id="run-new", operator="me", cancel=threading.Event())
+    run = deploy.RobotRun(ctx, Host(name="r1", groups=("all",), vars={"rosdeploy_compose": compose}, address="h"))
+    run.t = robot
+    started: dict = {}
+
+    def start(release, flavor, together=False, services=None):
+        robot.calls.append("up")
+        started.update(release=release, flavor=flavor, together=together, services=services)
+        return Verdict(True, "running and passing health checks")
+    monkeypatch.setattr(run, "start", start)
+    return deploy._rollback(run, None, None), started
+
+
+def test_a_rollback_starts_the_switch_after_one_round_trip(monkeypatch) -> None:
+    robot = Robot([{**active("1.0.0-aaa"), "compose": "v2"}, {**active("1.1.0-bbb"), "compose": "v2"}])
+    result, started = _rolled_back(robot, monkeypatch)
+    assert result.outcome == "switched"
+    assert robot.calls[:2] == ["lock+state", "up"]         # no state, lock or manifest of their own
+    # the kept release's own services (its manifest), together: it passed the gate here before
+    assert started == {"release": "1.0.0-aaa", "flavor": "v2", "together": True, "services": ("driver",)}
+    assert [s.name for s in result.steps] == ["lock+state", "activate"]
+    assert robot.history[-1]["compose"] == "v2"       # so the next rollback needs no more either
+
+
+@pytest.mark.parametrize("compose,calls,flavor", [
+    ("auto", ["lock+state", "state", "up"], "v1"),            # the containers' label tells it
+    ("v2", ["lock+state", "state", "state", "up"], "v2"),     # the label disagrees with the host's choice: ask
+])
+def test_a_rollback_without_the_flavour_in_history_reads_it_from_the_robot(compose, calls, flavor,
+                                                                             monkeypatch) -> None:
+    made_by_v1 = ({"name": "/demo-driver-1", "service": "driver", "image": "i", "status": "running",
+                   "ps_status": "Up 1 minute", "compose": "1.29.2"},)
+    robot = Robot([active("1.0.0-aaa"), active("1.1.0-bbb")], containers=made_by_v1)   # an older rosdeploy's
+    result, started = _rolled_back(robot, monkeypatch, compose)
+    assert result.outcome == "switched" and robot.calls[:len(calls)] == calls and started["flavor"] == flavor
