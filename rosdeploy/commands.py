@@ -161,7 +161,8 @@ take_lock "$@"
 # A rollback's first round trip: the lock, then the state read under it (what it shows
 # cannot change before the switch), with the kept releases' manifests.
 LOCKED_STATE_SCRIPT = _PROLOGUE + _FILES + _LOCK + r'''
-take_lock "$1" "$2" "$3"; locked=$?
+# Nothing deployed here: nothing to switch, so nothing to lock (and no directory to make).
+if [ -d "$dir/releases" ]; then take_lock "$1" "$2" "$3"; locked=$?; else echo "nothing deployed"; locked=0; fi
 mode=switch; shift 3
 ''' + _STATE_SECTIONS + r'''
 exit $locked
@@ -328,9 +329,11 @@ def health_test(container: str, test: tuple[str, ...], timeout: float) -> Comman
 
 
 # Runs inside the container: the health test again and again with no `docker exec` per
-# try (an exec costs ~70 ms of robot CPU, the demo's test ~3 ms). A test that takes longer
-# than `every` (a `ros2` CLI call, say) is spaced by its own duration, so the loop keeps
-# the robot at most half busy with it, and that time counts against the tries.
+# try (an exec costs ~70 ms of robot CPU, the demo's test ~3 ms). A test that takes whole
+# seconds (a `ros2` CLI call, say) is spaced by its own duration, so the loop keeps the
+# robot at most half busy with it; a shorter one, slowed down by a busy CPU while the
+# nodes start, is not (spacing it would delay the pass it is waiting for). Every try's
+# time counts against the window.
 # Exit 0: it passed; 3: still failing when the tries ran out; anything else: it cannot
 # run this way (no /bin/sh in the image, or the container is gone).
 HEALTH_WATCH_SCRIPT = r'''
@@ -350,13 +353,10 @@ while :; do
   now; before=$now
   if [ "$kind" = CMD-SHELL ]; then /bin/sh -c "$1"; else "$@"; fi >/dev/null 2>&1 && exit 0
   now; took=$((now - before))
-  tries=$((tries - 1 - 2 * took * per_second / 100))
+  if [ "$took" -ge 100 ]; then pause=$took; else pause=$((100 / per_second)); fi
+  tries=$((tries - (took + pause) * per_second / 100))
   [ "$tries" -gt 0 ] || exit 3
-  if [ "$took" -gt $((100 / per_second)) ]; then
-    sleep "$((took / 100)).$((took / 10 % 10))$((took % 10))"
-  else
-    sleep "$every"
-  fi
+  if [ "$took" -ge 100 ]; then sleep "$((took / 100)).$((took / 10 % 10))$((took % 10))"; else sleep "$every"; fi
 done
 '''
 

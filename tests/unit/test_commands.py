@@ -181,6 +181,13 @@ def test_locked_state_takes_the_lock_then_reads_the_state_under_it(tmp_path: Pat
     assert commands.parse_sections(held.stdout)["current"].endswith("releases/1.1.0-y")
 
 
+
+def test_locked_state_of_a_robot_with_nothing_deployed_creates_nothing(tmp_path: Path) -> None:
+    out = run_local(commands.locked_state("~/r", "demo", {"run": "run-A"}), tmp_path)
+    assert out.returncode == 0 and commands.parse_sections(out.stdout.decode())["releases"] == ""
+    assert not (tmp_path / "r").exists()
+
+
 def test_a_lock_that_cannot_be_created_is_an_error_not_held(tmp_path: Path) -> None:
     (tmp_path / "r").mkdir()
     (tmp_path / "r" / "demo").write_text("a file where the project dir should be")
@@ -303,23 +310,23 @@ def test_health_watch_passes_cmd_arguments_as_they_are(tmp_path) -> None:
 
 
 def test_health_watch_spaces_a_slow_check_by_its_own_duration(tmp_path) -> None:
-    # each try takes ~1 s: with window 2 s every 0.5 s (4 tries) the 1 s try uses up
-    # 1 + 2*1*2 = 5 tries' worth, so it runs once, not 4 times back to back
+    # each try takes ~1 s: with window 2 s every 0.5 s (4 tries) the 1 s try and the 1 s
+    # pause after it use up all 4 tries' worth, so it runs once, not 4 times back to back
     check = "echo x >> tries; sleep 1.05; exit 1"
     assert _watch_in_container(tmp_path, ("CMD-SHELL", check), window=2.0, every=0.5) == 3
     assert (tmp_path / "tries").read_text().count("x") == 1
 
 
 def test_health_watch_counts_a_sub_second_check_by_its_real_duration(tmp_path) -> None:
-    # 0.3 s per try, window 1.2 s every 0.1 s (12 tries): each try uses 1 + 2*0.3*10 = 7,
-    # so it runs twice, 0.6 s apart (its own duration, then as long again). A clock in whole
-    # seconds would call most of these tries 0 s long and run them every 0.1 s, and call one
-    # that crosses a second's boundary 1 s long and wait a whole second after it.
+    # 0.3 s per try, window 2 s every 0.1 s (20 tries): each try and its pause use 4, so
+    # it runs 5 times, 0.4 s apart (not spaced by its own duration: it is not whole
+    # seconds). A clock in whole seconds calls a try that crosses a second's boundary 1 s
+    # long, which here used up the window by the third try at the latest.
     check = "read -r t _ </proc/uptime; echo $t >> tries; sleep 0.3; exit 1"
-    assert _watch_in_container(tmp_path, ("CMD-SHELL", check), window=1.2, every=0.1) == 3
+    assert _watch_in_container(tmp_path, ("CMD-SHELL", check), window=2.0, every=0.1) == 3
     starts = [float(t) for t in (tmp_path / "tries").read_text().split()]
-    assert len(starts) == 2
-    assert 0.55 <= starts[1] - starts[0] < 0.9
+    assert len(starts) == 5
+    assert all(0.35 <= b - a < 0.6 for a, b in zip(starts, starts[1:]))
 
 
 ENGINE_API_LIST = [{"Id": "abc", "Names": ["/demo-driver-1"], "Image": "r:5000/demo/driver:1.0.0",
