@@ -28,8 +28,8 @@ from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.owner import Controller, dead_run, record, this_controller
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
-from rosdeploy.robot import (RobotState, parse_state, passed_gate, previous_release, release_for_version,
-                            release_services, unhealthy_services)
+from rosdeploy.robot import (RobotState, parse_state, passed_gate, release_services,
+                            rollback_target, unhealthy_services)
 from rosdeploy.transport import Result, SSHOptions, Transport, connect
 
 Progress = Callable[[str, str], None]   # (robot, what is happening)
@@ -416,12 +416,6 @@ def _rollback_flavor(run: RobotRun, state: RobotState) -> str | None:
         return state.recorded_flavor
     running = run.read_state(full=False, step="state").running_flavor
     return running if usable(running) else run.read_state().flavor
-
-
-def rollback_target(state: RobotState, to_version: str | None, to_release: str | None) -> str | None:
-    if to_release:
-        return to_release if to_release in state.releases else None
-    return release_for_version(state, to_version) if to_version else previous_release(state)
 
 
 def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> HostResult:

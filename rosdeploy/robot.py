@@ -182,6 +182,14 @@ def passed_gate(state: RobotState, release: str) -> bool:
     return any(e.get("release") == release and e.get("result") == "active" for e in state.history)
 
 
+def rollback_target(state: RobotState, to_version: str | None, to_release: str | None) -> str | None:
+    """The kept release a rollback goes to: an exact release id, the newest of a version,
+    or the previous release; None when the robot does not have it."""
+    if to_release:
+        return to_release if to_release in state.releases else None
+    return release_for_version(state, to_version) if to_version else previous_release(state)
+
+
 def release_for_version(state: RobotState, version: str) -> str | None:
     """Newest kept release of a version (release ids are `<version>-<digest12>`)."""
     matches = [r for r in state.releases if r.rsplit("-", 1)[0] == version]

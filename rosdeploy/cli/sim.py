@@ -63,8 +63,8 @@ def cmd_down(args: argparse.Namespace, out: Output) -> int:
 
 
 def cmd_status(args: argparse.Namespace, out: Output) -> int:
-    from rosdeploy import sim
     """Exit 0 when every robot runs and the registry answers, 3 otherwise."""
+    from rosdeploy import sim
     current = sim.status()
     if out.as_json or args.status_json:
         out.document(_status_document(current))
