@@ -337,7 +337,7 @@ def health_test(container: str, test: tuple[str, ...], timeout: float) -> Comman
 # Exit 0: it passed; 3: still failing when the tries ran out; anything else: it cannot
 # run this way (no /bin/sh in the image, or the container is gone).
 HEALTH_WATCH_SCRIPT = r'''
-tries=$1; every=$2; per_second=$3; kind=$4; shift 4
+tries=$1; every=$2; kind=$3; shift 3     # every: in hundredths of a second
 # The clock in hundredths of a second, into $now. /proc/uptime is read by the shell itself
 # (a `$(date)` is two processes, on every starting container while the nodes start).
 # Whole seconds would not do: a 3 ms try that crosses a second's boundary would count
@@ -353,10 +353,10 @@ while :; do
   now; before=$now
   if [ "$kind" = CMD-SHELL ]; then /bin/sh -c "$1"; else "$@"; fi >/dev/null 2>&1 && exit 0
   now; took=$((now - before))
-  if [ "$took" -ge 100 ]; then pause=$took; else pause=$((100 / per_second)); fi
-  tries=$((tries - (took + pause) * per_second / 100))
+  if [ "$took" -ge 100 ]; then pause=$took; else pause=$every; fi
+  tries=$((tries - (took + pause) / every))
   [ "$tries" -gt 0 ] || exit 3
-  if [ "$took" -ge 100 ]; then sleep "$((took / 100)).$((took / 10 % 10))$((took % 10))"; else sleep "$every"; fi
+  sleep "$((pause / 100)).$((pause / 10 % 10))$((pause % 10))"
 done
 '''
 
@@ -371,7 +371,7 @@ def health_watch(container: str, test: tuple[str, ...], timeout: float, window: 
         return None
     kind, args = runnable
     argv = ("docker", "exec", container, "/bin/sh", "-c", HEALTH_WATCH_SCRIPT, "sh",
-            str(max(1, round(window / every))), f"{every:g}", str(max(1, round(1 / every))), kind, *args)
+            str(max(1, round(window / every))), str(max(1, round(every * 100))), kind, *args)
     return Command(argv, timeout=window + timeout + 5.0, label=f"health-watch {container}")
 
 

@@ -46,7 +46,7 @@ def pid_alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:
-        return True
+        pass          # it exists, under another user
     return True
 
 
