@@ -34,6 +34,63 @@ def register(sub: argparse._SubParsersAction) -> None:
     status.add_argument("--json", dest="status_json", action="store_true",
                         help="print one JSON document on stdout")
     status.set_defaults(func=cmd_status)
+    _register_faults(actions)
+
+
+def _register_faults(actions: argparse._SubParsersAction) -> None:
+    """Field faults to rehearse on: a cut link, a robot without its registry, a busy robot, a reboot."""
+    cut = actions.add_parser("cut", help="drop a robot's SSH link (the robot keeps running) until `sim heal`",
+                             description="Every packet to the robot's sshd is dropped, on open connections "
+                                         "too, as when a robot roams out of Wi-Fi range.")
+    cut.add_argument("robot", metavar="ROBOT")
+    cut.add_argument("--for", dest="seconds", type=_seconds, default=0.0, metavar="DURATION",
+                     help="heal by itself after this long (e.g. 2s: a Wi-Fi blip)")
+    cut.set_defaults(func=cmd_fault, fault="cut")
+    isolate = actions.add_parser("isolate", help="cut a robot off from the registry; its SSH link still works")
+    isolate.add_argument("robot", metavar="ROBOT")
+    isolate.add_argument("--from", dest="target", choices=["registry"], default="registry")
+    isolate.set_defaults(func=cmd_fault, fault="isolate")
+    heal = actions.add_parser("heal", help="undo `sim cut` and `sim isolate` on a robot")
+    heal.add_argument("robot", metavar="ROBOT")
+    heal.set_defaults(func=cmd_fault, fault="heal")
+    busy = actions.add_parser("busy", help="set the demo driver's /robot_mode to BUSY (on) or IDLE (off)")
+    busy.add_argument("robot", metavar="ROBOT")
+    busy.add_argument("state", choices=["on", "off"])
+    busy.set_defaults(func=cmd_fault, fault="busy")
+    reboot = actions.add_parser("reboot", help="restart a robot (its engine, sshd and containers) and wait for it")
+    reboot.add_argument("robot", metavar="ROBOT")
+    reboot.set_defaults(func=cmd_fault, fault="reboot")
+
+
+def _seconds(text: str) -> float:
+    from rosdeploy.fleet import parse_duration
+    try:
+        return parse_duration(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a duration (e.g. 2s, 500ms, 1m)") from None
+
+
+def cmd_fault(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import sim
+    sim.load()       # a clear "run `rosdeploy sim up`" when there is no fleet
+    name = args.robot
+    if args.fault == "cut":
+        sim.cut(name, args.seconds)
+        out.line(f"{name}: SSH link cut" + (f" for {args.seconds:g} s" if args.seconds else "; `rosdeploy sim heal "
+                                                                                                f"{name}` restores it"))
+    elif args.fault == "isolate":
+        sim.isolate(name, args.target)
+        out.line(f"{name}: cut off from the {args.target}; SSH still works")
+    elif args.fault == "heal":
+        sim.heal(name)
+        out.line(f"{name}: link and registry restored")
+    elif args.fault == "busy":
+        sim.busy(name, args.state == "on")
+        out.line(f"{name}: /robot_mode {'BUSY' if args.state == 'on' else 'IDLE'}")
+    else:
+        sim.reboot(name)
+        out.line(f"{name}: restarted and reachable")
+    return 0
 
 
 def _progress(out: Output):
