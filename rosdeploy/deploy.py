@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Callable, Iterator
 
-from rosdeploy import __version__, commands
+from rosdeploy import __version__, commands, hold
 from rosdeploy.errors import CommandFailed, ConnectError, RemoteError
 from rosdeploy.health import (Poller, Verdict, diagnose, expected_services, settled, start_levels,
                               started_containers, wait_healthy)
@@ -47,6 +47,7 @@ class RunContext:
     cancel: threading.Event = field(default_factory=threading.Event)
     lock_wait: float = 0.0
     break_lock: bool = False
+    force: bool = False             # --force: switch regardless of readiness gate and window (hold.py)
     controller: Controller = field(default_factory=this_controller)   # this machine, for lock owners
     connect: Callable[[Host, SSHOptions], Transport] = connect
 
@@ -317,6 +318,9 @@ def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: di
     if not pulled.ok:
         return run.result(FAILED, running_release=old, reason="pull failed, nothing changed: "
                           + _pull_errors(pulled.stdout, run.spec.registry), **base)
+    held = hold.before_switch(run, state)      # maintenance window, readiness gate: pulled, nothing restarts
+    if held is not None:
+        return run.result(held.outcome, running_release=old, reason=held.reason, opens=held.opens, **base)
     with run.step("upload"):
         services = tuple(s.name for s in run.spec.services)
         run.t.check(commands.upload(run.root, run.spec.project, new, _tarball(run, release, pulled.stdout),

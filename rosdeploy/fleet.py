@@ -18,7 +18,7 @@ import shlex
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
-from rosdeploy import yamlsrc
+from rosdeploy import ready as readiness, window as windows, yamlsrc
 from rosdeploy.errors import FleetSpecError, InputError, Problem
 from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, RollbackPolicy, RolloutPolicy,
                              Service, Topic, frozen_map)
@@ -480,7 +480,8 @@ SECTIONS: dict[str, Mapping[str, Convert]] = {
     "health": {"timeout": _duration, "stable": _duration, "interval": _duration,
                "topic_window": _duration, "probe_service": _string(NAME_RE, "service name")},
     "rollout": {"waves": _listof(_wave, "waves"), "max_fail": _max_fail, "forks": _integer(1),
-                "order_by": _order_by, "pause": _duration},
+                "order_by": _order_by, "pause": _duration,
+                "retry": _duration, "retry_max": _duration, "count_busy": _boolean},
     "rollback": {"auto": _boolean, "fleet": _boolean, "keep_releases": _integer(2)},
 }
 TOP = {
@@ -493,6 +494,8 @@ TOP = {
     **{name: _section(schema) for name, schema in SECTIONS.items()},
     "services": _named(NAME_RE, "service", _section(SERVICE, required=("image",))),
     "vars": _named(ENV_RE, "template variable", lambda r, kp, v: v),
+    "ready": readiness.convert,     # the readiness gate (ready.py)
+    "window": windows.convert,      # the maintenance window (window.py)
 }
 
 
@@ -514,6 +517,8 @@ def load_fleet(path: str | Path, *, inventory: str | None = None, version: str |
     _check_paths(r, top, inventory_overridden=bool(inventory))
     top.update(_overrides(r, inventory, version))
     _check_services(r, top)
+    if isinstance(top.get("ready"), readiness.ReadyPolicy) and isinstance(top.get("services"), dict):
+        readiness.check_services(top["ready"], top["services"], r, ("ready",))
     if r.problems:
         raise FleetSpecError(sorted(r.problems, key=lambda p: (p.file != doc.path, p.line or 0)))
     return _build(doc, top)
@@ -656,6 +661,7 @@ def _build(doc: Doc, top: dict) -> FleetSpec:
         rollout=RolloutPolicy(**{k: tuple(v) if k == "waves" else v for k, v in rollout.items()}),
         rollback=RollbackPolicy(**rollback),
         vars=frozen_map(top.get("vars")),
+        ready=top.get("ready") or None, window=top.get("window") or None,
         lines=frozen_map(doc.lines),
     )
 

@@ -112,6 +112,9 @@ class RolloutPolicy:
     forks: int = 200
     order_by: str | None = None                 # an inventory group prefix, e.g. "site_" → one site at a time
     pause: float = 0.0                          # seconds between waves
+    retry: float = 10.0                         # `apply --until`: first wait before a pending robot's next try
+    retry_max: float = 300.0                    # ... doubling (with jitter) up to this
+    count_busy: bool = False                    # busy robots count against max_fail
 
 
 @dataclass(frozen=True)
@@ -146,6 +149,8 @@ class FleetSpec:
     rollout: RolloutPolicy = RolloutPolicy()
     rollback: RollbackPolicy = RollbackPolicy()
     vars: Mapping[str, Any] = field(default_factory=frozen_map)  # extra template vars
+    ready: Any = None               # ready.ReadyPolicy: the readiness gate (None: none)
+    window: Any = None              # window.Window: the maintenance window (None: any time)
     # line of every key path in the fleet file, so checks run after loading can say file:line
     lines: Mapping[tuple, int] = field(default_factory=frozen_map, repr=False, compare=False)
 

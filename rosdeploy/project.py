@@ -85,8 +85,9 @@ def _same_on(p: Problem, robots: list[str]) -> Problem:
 
 def prepare(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
     """Render every robot once and run every rule on the result: releases and findings, errors first."""
-    from rosdeploy import checks
+    from rosdeploy import checks, ready
     releases, problems = render_hosts(project, hosts)
+    problems += ready.host_problems(project.spec, hosts)     # inventory `ready:` / `window:` overrides
     return releases, sorted(problems + checks.run_checks(project, hosts, releases), key=checks.sort_key)
 
 

@@ -14,8 +14,10 @@ STOPPED = "stopped"            # new release failed and there was no previous on
 UNREACHABLE = "unreachable"    # SSH failed: host key, network, auth
 LOCKED = "locked"              # another run holds the robot's lock
 SKIPPED = "skipped"            # not started: rollout stopped or interrupted first
+BUSY = "busy"                  # readiness gate still failing at ready.max_wait: images pulled, nothing restarted
+WAITING_WINDOW = "waiting-window"   # outside its maintenance window: images pulled, nothing restarted
 OK_OUTCOMES = frozenset({UNCHANGED, DEPLOYED, SWITCHED})
-OUTCOMES = OK_OUTCOMES | {ROLLED_BACK, FAILED, STOPPED, UNREACHABLE, LOCKED, SKIPPED}
+OUTCOMES = OK_OUTCOMES | {ROLLED_BACK, FAILED, STOPPED, UNREACHABLE, LOCKED, SKIPPED, BUSY, WAITING_WINDOW}
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,8 @@ class HostResult:
     steps: tuple[Step, ...] = ()
     seconds: float = 0.0
     wave: int | None = None
+    opens: str | None = None                # waiting-window: when the window opens (UTC, ISO)
+    earlier: tuple[str, ...] = ()           # `apply --until`: "outcome: reason" of this run's earlier tries
 
     @property
     def ok(self) -> bool:

@@ -16,6 +16,7 @@ from typing import Callable, Sequence, TypeVar
 
 from rosdeploy.deploy import RunContext, apply_host, rollback_host
 from rosdeploy.model import Host, RenderedRelease, RolloutPolicy
+from rosdeploy.pending import PENDING_OUTCOMES, counts_as_failure, next_try
 from rosdeploy.results import DEPLOYED, SKIPPED, FleetResult, HostResult
 
 T = TypeVar("T")
@@ -100,7 +101,9 @@ Notify = Callable[[str, dict], None]   # rollout-level events for the output lay
 
 
 def apply_fleet(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, RenderedRelease],
-                policy: RolloutPolicy, notify: Notify = lambda event, data: None) -> FleetResult:
+                policy: RolloutPolicy, notify: Notify = lambda event, data: None,
+                until: float | None = None) -> FleetResult:
+    """`until` (time.monotonic() deadline, `apply --until`): then retry pending robots until it."""
     started = time.monotonic()
     waves = plan_waves(hosts, policy)
     done: list[HostResult] = []
@@ -112,7 +115,7 @@ def apply_fleet(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Rend
             notify("wave", {"number": number, "of": len(waves), "hosts": [h.name for h in wave]})
             results = parallel(wave, lambda h: apply_host(ctx, h, releases[h.name]), policy.forks, ctx.cancel.set)
             done.extend(_with_wave(r, number) for r in results)
-            failed = [r for r in results if not r.ok and r.outcome != SKIPPED]
+            failed = [r for r in results if counts_as_failure(r, policy.count_busy, until is not None)]
             budget = allowed_failures(policy.max_fail, len(wave))
             if len(failed) > budget:
                 aborted = True
@@ -123,10 +126,60 @@ def apply_fleet(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Rend
                 ctx.cancel.wait(policy.pause)
         except KeyboardInterrupt:   # between waves (pause, --step prompt): stop, then report
             ctx.cancel.set()
+    if until is not None and not aborted:
+        aborted = _converge(ctx, hosts, releases, policy, done, until, notify)
     done.extend(_skipped(waves, done, "rollout stopped before this robot's wave"))
     back = _fleet_rollback(ctx, hosts, done, policy, notify) if aborted and ctx.spec.rollback.fleet else ()
     return FleetResult("apply", tuple(done), aborted=aborted, fleet_rollback=back,
                        interrupted=ctx.cancel.is_set(), seconds=time.monotonic() - started, run_id=ctx.run_id)
+
+
+def _converge(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, RenderedRelease],
+              policy: RolloutPolicy, done: list[HostResult], until: float, notify: Notify) -> bool:
+    """`apply --until`: try pending robots (unreachable, busy, waiting for their window) again,
+    with backoff and jitter, until every one converged or the next try would come after
+    `until`. Each wave's max_fail still holds. True when a retry's failures stopped the rollout."""
+    by_name = {h.name: h for h in hosts}
+    tries: dict[str, int] = {}
+    due: dict[str, float] = {}
+    while not ctx.cancel.is_set():
+        waiting = [i for i, r in enumerate(done) if r.outcome in PENDING_OUTCOMES]
+        now = time.monotonic()
+        for i in waiting:
+            if done[i].host not in due:
+                tries[done[i].host] = tries.get(done[i].host, 0) + 1
+                due[done[i].host] = next_try(done[i], tries[done[i].host], policy.retry, policy.retry_max, now)
+        if not waiting or min(due[done[i].host] for i in waiting) > until:
+            return False
+        notify("pending", {"robots": [{"host": done[i].host, "outcome": done[i].outcome, "reason": done[i].reason,
+                                       "next_try": round(due[done[i].host] - now, 1)} for i in waiting],
+                           "results": tuple(done)})
+        try:
+            ctx.cancel.wait(max(0.0, min(due[done[i].host] for i in waiting) - now))
+        except KeyboardInterrupt:
+            ctx.cancel.set()
+        if ctx.cancel.is_set():
+            return False
+        batch = [i for i in waiting if due[done[i].host] <= time.monotonic()]
+        results = parallel([by_name[done[i].host] for i in batch],
+                           lambda h: apply_host(ctx, h, releases[h.name]), policy.forks, ctx.cancel.set)
+        for i, result in zip(batch, results):
+            due.pop(done[i].host)
+            done[i] = replace(result, wave=done[i].wave, earlier=done[i].earlier + (f"{done[i].outcome}: {done[i].reason}",))
+        if _over_budget({done[i].wave for i in batch}, done, policy, notify):
+            return True
+    return False
+
+
+def _over_budget(waves: set, done: list[HostResult], policy: RolloutPolicy, notify: Notify) -> bool:
+    for wave in sorted(w for w in waves if w is not None):
+        members = [r for r in done if r.wave == wave]
+        failed = [r.host for r in members if counts_as_failure(r, policy.count_busy, retrying=True)]
+        budget = allowed_failures(policy.max_fail, len(members))
+        if len(failed) > budget:
+            notify("abort", {"wave": wave, "failed": failed, "max_fail": budget})
+            return True
+    return False
 
 
 def _with_wave(result: HostResult, wave: int) -> HostResult:

@@ -79,8 +79,96 @@ def probe(spec):
     return report
 
 
+def _qos_of(node, name):
+    """The first publisher's reliability and durability: a transient-local /robot_mode then
+    hands over its latched value at once, and a best-effort topic still matches."""
+    from rclpy.qos import QoSProfile
+
+    pubs = node.get_publishers_info_by_topic(name)
+    qos = QoSProfile(depth=10)
+    if pubs:
+        qos.reliability = pubs[0].qos_profile.reliability
+        qos.durability = pubs[0].qos_profile.durability
+    return qos
+
+
+def _field(msg, path):
+    for part in path.split("."):
+        msg = getattr(msg, part)
+    if hasattr(msg, "tolist"):
+        msg = msg.tolist()
+    return msg if isinstance(msg, (str, int, float, bool, list)) or msg is None else str(msg)
+
+
+def _numbers(msg):
+    """Every number in a message (Twist: linear.x ... angular.z), for `quiet` (silent or all zero)."""
+    if isinstance(msg, (int, float)) and not isinstance(msg, bool):
+        return [msg]
+    if isinstance(msg, (list, tuple)):
+        return [n for m in msg for n in _numbers(m)]
+    if hasattr(msg, "get_fields_and_field_types"):
+        return [n for f in msg.get_fields_and_field_types() for n in _numbers(getattr(msg, f))]
+    return []
+
+
+def readiness(spec):
+    """Readiness conditions: the latest value of a field, or a topic silent/all-zero for N s.
+    A field condition waits up to spec["wait"] s for one message; a quiet one listens its N s."""
+    import rclpy
+
+    rclpy.init()
+    node = rclpy.create_node("rosdeploy_ready_%d" % os.getpid())
+    conds = spec["ready"]
+    seen = [{} for _ in conds]
+    try:
+        found = _discover(node, rclpy, {c["topic"] for c in conds}, min(spec.get("wait", 3.0), 2.0))
+        subs = []
+        for i, c in enumerate(conds):
+            if c["topic"] not in found:
+                seen[i] = {"quiet": True, "error": "topic not on the ROS graph"} if "quiet" in c else \
+                    {"error": "topic %s not on the ROS graph" % c["topic"]}
+                continue
+            seen[i] = {"quiet": True} if "quiet" in c else {}
+            subs.append(node.create_subscription(_message_class(found[c["topic"]][0]), c["topic"],
+                                                 lambda msg, i=i, c=c: _note(seen[i], c, msg),
+                                                 _qos_of(node, c["topic"])))
+        start = time.monotonic()
+        wait = spec.get("wait", 3.0)
+
+        def pending():
+            now = time.monotonic() - start
+            return any(("quiet" in c and now < c["quiet"] and seen[i].get("quiet"))
+                       or ("quiet" not in c and "value" not in seen[i] and "error" not in seen[i] and now < wait)
+                       for i, c in enumerate(conds))
+        while pending():
+            rclpy.spin_once(node, timeout_sec=0.05)
+        for i, c in enumerate(conds):
+            if "quiet" not in c and "value" not in seen[i] and "error" not in seen[i]:
+                seen[i] = {"error": "no message within %gs" % wait}
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    return seen
+
+
+def _note(entry, cond, msg):
+    if "quiet" in cond:
+        if any(n != 0 for n in _numbers(msg)):
+            entry["quiet"] = False
+            entry["value"] = _numbers(msg)[:6]
+        return
+    try:
+        entry["value"] = _field(msg, cond["field"])
+    except AttributeError:
+        entry["error"] = "message has no field %s" % cond["field"]
+
+
 def main():
-    report = probe(json.loads(sys.argv[1]))
+    spec = json.loads(sys.argv[1])
+    if "ready" in spec:
+        print(json.dumps({"ready": readiness(spec)}, sort_keys=True))
+        return 0
+    report = probe(spec)
     print(json.dumps({"topics": report, "domain": os.environ.get("ROS_DOMAIN_ID")}, sort_keys=True))
     return 0 if all(t["ok"] for t in report.values()) else 1
 

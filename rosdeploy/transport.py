@@ -14,10 +14,11 @@ from __future__ import annotations
 import functools
 import getpass
 import os
+import random
 import select
 import socket
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import paramiko
@@ -216,8 +217,29 @@ def _drain(chan: paramiko.Channel, deadline: float) -> tuple[str, str]:
     return b"".join(out).decode("utf-8", "replace"), b"".join(err).decode("utf-8", "replace")
 
 
+CONNECT_TRIES = 3     # a Wi-Fi blip is not an outage: tries within one ssh.connect_timeout
+
+
 def connect(host: Host, options: SSHOptions, config: Config | None = None) -> SSHTransport:
-    return SSHTransport(host, options, config).open()
+    """Up to CONNECT_TRIES tries, each with an equal share of what is left of the
+    connect_timeout budget, a short jitter between them; a wrong host key or a refused
+    login is not retried (it would only be refused again)."""
+    budget = options.connect_timeout
+    deadline = time.monotonic() + budget
+    for attempt in range(1, CONNECT_TRIES + 1):
+        left = deadline - time.monotonic()
+        share = left / (CONNECT_TRIES - attempt + 1)
+        try:
+            return SSHTransport(host, replace(options, connect_timeout=max(1.0, share)), config).open()
+        except ConnectError as exc:
+            final = (attempt == CONNECT_TRIES or isinstance(exc, HostKeyError) or deadline - time.monotonic() < 1.5
+                     or isinstance(exc.__cause__, paramiko.AuthenticationException))
+            if final:
+                if attempt > 1:
+                    raise ConnectError(host.name, f"{exc.detail} ({attempt} tries within {budget:g}s)") from exc
+                raise
+        time.sleep(random.uniform(0.1, min(0.5, max(0.1, deadline - time.monotonic() - 1.0))))
+    raise AssertionError("unreachable: the last try raises")
 
 
 def local_user_at_host() -> str:

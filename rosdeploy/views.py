@@ -5,7 +5,7 @@ import difflib
 from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
-from rosdeploy import commands
+from rosdeploy import commands, hold
 from rosdeploy.deploy import RobotRun, RunContext, preflight
 from rosdeploy.errors import RemoteError
 from rosdeploy.health import expected_services, settled
@@ -29,6 +29,8 @@ class RobotStatus:
     deployed_by: str | None = None
     deployed_at: str | None = None
     lock: Mapping[str, Any] | None = None
+    app_lock: tuple[Mapping[str, Any], ...] = ()     # held lock files of the readiness gate (ready.py)
+    pending: Mapping[str, Any] | None = None         # the controller's pending entry (pending.py)
 
 
 def quick_state(ctx: RunContext, host: Host, judge_health: bool = False) -> RobotState | RemoteError:
@@ -61,7 +63,7 @@ def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) ->
         services=tuple({"service": c.service, "status": c.status, "health": c.health, "restarts": c.restarts,
                         "image": c.image} for c in state.containers),
         deployed_by=manifest.get("deployed_by"), deployed_at=manifest.get("deployed_at"),
-        lock=state.lock)
+        lock=state.lock, app_lock=hold.app_locks(ctx, host))
 
 
 @dataclass(frozen=True)

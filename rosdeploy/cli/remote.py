@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import argparse
 import getpass
+import time
 from dataclasses import replace
 from typing import Callable, Sequence
 
 from rosdeploy import keeper, runlog
-from rosdeploy.cli import report
+from rosdeploy.cli import pending as pending_cli, report
 from rosdeploy.cli.common import add_fleet_args
 from rosdeploy.deploy import RunContext
 from rosdeploy.keeper import kept_connect
@@ -30,6 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--order-by", help="inventory group prefix to order robots by, e.g. site_")
     p.add_argument("--pause", type=float, help="seconds to wait between waves")
     p.add_argument("--step", action="store_true", help="ask before every wave after the first")
+    pending_cli.add_args(p)     # --until, --force
     p.set_defaults(func=cmd_apply)
 
     p = sub.add_parser("plan", help="show what apply would do, changing nothing")
@@ -66,7 +68,7 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
 
 # ----------------------------------------------------------------- loading
 
-def load(args: argparse.Namespace, out: Output, render: bool = True):
+def load(args: argparse.Namespace, out: Output, render: bool = True, pick_up: bool = False):
     """Fleet file + inventory + targets (+ releases), validated: input errors stop here, before any robot.
     `render=False` (rollback): the releases kept on the robots are what runs, so neither the time
     to render nor a template error in what would be deployed next may hold up going back."""
@@ -74,6 +76,8 @@ def load(args: argparse.Namespace, out: Output, render: bool = True):
                            vault_password_file=args.vault_password_file,
                            prompt=getpass.getpass if out.interactive else None)
     hosts = project.targets(args.limit)
+    if pick_up:     # apply: robots still pending for this fleet file and version come along
+        hosts = pending_cli.with_pending(project, hosts, out)
     out.mask(project.secret_values)
     if not render:
         return project, hosts, {}
@@ -92,7 +96,7 @@ def context(args: argparse.Namespace, spec, progress: Callable[[str, str], None]
                      connect_timeout=spec.connect_timeout, command_timeout=spec.command_timeout)
     return RunContext(spec=spec, ssh=ssh, run_id=runlog.new_run_id(), operator=local_user_at_host(),
                       progress=progress, lock_wait=getattr(args, "lock_wait", 0.0),
-                      break_lock=getattr(args, "break_lock", False))
+                      break_lock=getattr(args, "break_lock", False), force=getattr(args, "force", False))
 
 
 def _confirmed(args: argparse.Namespace, out: Output, question: str) -> bool:
@@ -106,14 +110,17 @@ def _confirmed(args: argparse.Namespace, out: Output, question: str) -> bool:
 # ---------------------------------------------------------------- commands
 
 def cmd_apply(args: argparse.Namespace, out: Output) -> int:
-    project, hosts, releases = load(args, out)
+    project, hosts, releases = load(args, out, pick_up=True)
     spec = project.spec
     policy = _policy(spec.rollout, args)
     if not _confirmed(args, out, f"Deploy {spec.project} {spec.version} to {len(hosts)} robot(s)?"):
         return EXIT_INPUT
     with report.progress_view(out, [h.name for h in hosts]) as view:
         ctx = context(args, spec, view.progress)
-        result = apply_fleet(ctx, hosts, releases, policy, report.rollout_notifier(out, args, view))
+        notify = pending_cli.notifier(out, spec, ctx.run_id, report.rollout_notifier(out, args, view))
+        until = time.monotonic() + args.until if args.until else None
+        result = apply_fleet(ctx, hosts, releases, policy, notify, until=until)
+    pending_cli.after_apply(spec, result)
     return _finish(out, result)
 
 
@@ -156,7 +163,9 @@ def _finish(out: Output, result) -> int:
 def cmd_status(args: argparse.Namespace, out: Output) -> int:
     project, hosts, releases = load(args, out)
     rows = _each(args, project.spec, hosts, lambda ctx, h: status_host(ctx, h, releases.get(h.name)))
+    rows = pending_cli.status_rows(rows, project.spec)
     report.status(out, rows)
+    pending_cli.status_notes(out, rows)
     return EXIT_OK if all(r.reachable and r.healthy and not r.drift for r in rows) else EXIT_PARTIAL
 
 

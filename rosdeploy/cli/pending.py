@@ -1,0 +1,92 @@
+"""The CLI side of robots that are busy or away: pending robots in `apply` and `status`."""
+from __future__ import annotations
+
+import argparse
+from typing import Any, Callable, Sequence
+
+from rosdeploy import pending
+from rosdeploy.fleet import parse_duration
+from rosdeploy.model import Host
+from rosdeploy.output import Output
+from rosdeploy.results import FleetResult
+
+
+def add_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--until", metavar="DURATION", type=_duration,
+                   help="keep retrying robots that are unreachable, busy or outside their maintenance "
+                        "window (backoff and jitter) for up to this long, e.g. 2h")
+    p.add_argument("--force", action="store_true",
+                   help="switch even when the readiness gate (ready:) or the maintenance window (window:) says no")
+
+
+def _duration(text: str) -> float:
+    try:
+        seconds = parse_duration(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a duration: use e.g. 90s, 30m or 2h") from None
+    if seconds <= 0:
+        raise argparse.ArgumentTypeError("must be above 0")
+    return seconds
+
+
+def with_pending(project: Any, hosts: Sequence[Host], out: Output) -> tuple[Host, ...]:
+    """The targets, plus the robots still pending for this fleet file and version (even when
+    --limit leaves them out): a plain `apply` picks them up."""
+    waiting = pending.for_version(pending.load(project.spec.path), project.spec.version)
+    named = {h.name for h in hosts}
+    extra = [h for h in project.targets(None) if h.name in waiting and h.name not in named]
+    if extra:
+        out.warn(f"also applying to {len(extra)} robot(s) pending for {project.spec.version}: "
+                 + ", ".join(f"{h.name} ({waiting[h.name].outcome})" for h in extra))
+    return tuple(hosts) + tuple(extra)
+
+
+def notifier(out: Output, spec: Any, run_id: str, inner: Callable[[str, dict], None]) -> Callable[[str, dict], None]:
+    """The rollout's notifier, plus `pending` events of `apply --until`: each pending robot,
+    its reason and its next try, and the record kept up to date for `status` meanwhile."""
+    def notify(event: str, data: dict) -> None:
+        if event != "pending":
+            inner(event, data)
+            return
+        record(spec, data["results"], run_id)
+        out.line(out.paint(f"-- {len(data['robots'])} robot(s) pending", "bold"))
+        for robot in data["robots"]:
+            out.line(f"   {robot['host']}: {robot['outcome']}, next try in {robot['next_try']:g}s: "
+                     f"{robot['reason'][:160]}")
+    return notify
+
+
+def record(spec: Any, results: Sequence, run_id: str) -> None:
+    pending.save(spec.path, pending.merged(pending.load(spec.path), results, spec.version, run_id))
+
+
+def after_apply(spec: Any, result: FleetResult) -> None:
+    record(spec, result.hosts, result.run_id)
+
+
+def status_rows(rows: Sequence[Any], spec: Any) -> list:
+    """Status rows with their robot's pending entry (any version: a pending robot of an older
+    version is worth seeing too, it is what the last apply could not do)."""
+    from dataclasses import replace
+
+    entries = pending.load(spec.path)
+    return [replace(r, pending=entries[r.host].to_json()) if r.host in entries else r for r in rows]
+
+
+def status_notes(out: Output, rows: Sequence[Any]) -> None:
+    """Below the status table: pending robots, and held application lock files with their age."""
+    if out.as_json:
+        return
+    for r in rows:
+        if getattr(r, "pending", None):
+            p = r.pending
+            out.line(f"{r.host}: PENDING {p['outcome']} for {p['version']} since {p['since']}: {p['reason'][:160]}")
+        for lock in getattr(r, "app_lock", None) or ():
+            age = lock.get("age")
+            out.line(f"{r.host}: app lock {lock['path']} held by {lock['holder']} since {lock['since']}"
+                     + (f" ({_age(age)} ago)" if age is not None else ""))
+
+
+def _age(seconds: int) -> str:
+    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m" if seconds >= 3600 else f"{seconds // 60}m{seconds % 60:02d}s"
+
