@@ -29,7 +29,7 @@ from rosdeploy.suggest import did_you_mean
 
 DAYS = ("mon", "tue", "wed", "thu", "fri", "sat", "sun")
 _KEYS = ("days", "start", "duration", "tz")
-_START_RE = re.compile(r"([01]?\d|2[0-3]):([0-5]\d)")
+_START_RE = re.compile(r"([01]?\d|2[0-3]):([0-5]\d)(?::([0-5]\d))?")   # HH:MM, or HH:MM:SS
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,7 @@ class Window:
 
     def describe(self) -> str:
         days = ",".join(DAYS[d] for d in sorted(self.days)) if self.days else "daily"
-        return f"{days} {self.start:%H:%M} for {_hours(self.duration)} ({self.tz})"
+        return f"{days} {self.start.isoformat('minutes' if not self.start.second else 'seconds')} for {_hours(self.duration)} ({self.tz})"
 
 
 def _hours(d: timedelta) -> str:
@@ -77,7 +77,7 @@ def convert(r: Any, kp: tuple, value: Any) -> Window | bool | None:
         r.error(kp + ("tz",), f"{tz!r} is not a time zone name: use an IANA name like Europe/Berlin or UTC")
     if len(r.problems) > before or match is None:
         return None
-    return Window(frozenset(days), dtime(int(match.group(1)), int(match.group(2))),
+    return Window(frozenset(days), dtime(int(match.group(1)), int(match.group(2)), int(match.group(3) or 0)),
                   timedelta(seconds=duration), str(tz))
 
 
