@@ -25,8 +25,9 @@ import jinja2
 import yaml
 
 from rosdeploy.errors import Problem, RenderError
-from rosdeploy.fleet import size_bytes
+from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
+from rosdeploy.sandbox import Sandbox, describe, render_value, value_template
 from rosdeploy.yamlsrc import Doc
 
 # rosdeploy/templates is a link to the repo's top-level templates/ in a checkout, and a real
@@ -47,13 +48,10 @@ RMW = {
     "cyclonedds": ("rmw_cyclonedds_cpp", "cyclonedds.xml", {"CYCLONEDDS_URI": "file:///cyclonedds.xml"}),
 }
 
-# Keys the built-in compose template writes for a service; `extra` may not repeat
-# them (a duplicate mapping key is a YAML error in Compose v2, a silent override in v1).
-RENDERED_SERVICE_KEYS = frozenset({
-    "image", "command", "environment", "volumes", "restart", "mem_limit", "cpus", "healthcheck",
-    "depends_on", "devices", "group_add", "user", "privileged", "profiles", "deploy", "labels",
-    "network_mode", "networks", "shm_size", "logging",
-})
+# Keys the built-in compose template writes for a service (fleet.MANAGED_COMPOSE is the one list);
+# `extra` may not repeat them (a duplicate mapping key is a YAML error in Compose v2, a silent
+# override in v1).
+RENDERED_SERVICE_KEYS = frozenset(MANAGED_COMPOSE)
 
 GPU_ENV = {"NVIDIA_VISIBLE_DEVICES": "all", "NVIDIA_DRIVER_CAPABILITIES": "compute,utility,video"}
 GPU_SHM_BYTES = 1 << 30          # the practices doc: ~1 GB of /dev/shm for GPU services
@@ -259,7 +257,7 @@ def _host_where(host: Host) -> tuple[str, int | None]:
 
 def _host_problem(host: Host, key: str, message: str) -> Problem:
     file, line = _host_where(host)
-    return Problem(file, line, key, f"robot {host.name}: {message}")
+    return Problem(file, line, key, f"robot {host.name!r}: {message}")
 
 
 def _device_group(path: str, logical: str, udev: UdevDevice | None) -> str | None:
@@ -318,11 +316,11 @@ class Renderer:
         return path
 
     def _environment(self) -> jinja2.Environment:
+        """Sandboxed (rosdeploy.sandbox): fleet values and template folders are configuration, not code."""
         loaders = [jinja2.FileSystemLoader(str(self.override))] if self.override else []
         loaders.append(jinja2.FileSystemLoader(str(TEMPLATE_DIR)))
-        env = jinja2.Environment(
-            loader=jinja2.ChoiceLoader(loaders), undefined=jinja2.StrictUndefined, autoescape=False,
-            trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True, auto_reload=False)
+        env = Sandbox(loader=jinja2.ChoiceLoader(loaders), trim_blocks=True, lstrip_blocks=True,
+                      keep_trailing_newline=True, auto_reload=False)
         env.filters.update(FILTERS)
         return env
 
@@ -354,7 +352,7 @@ class Renderer:
                 problems.append(self._problem(where + ("environment",), f"invalid variable name {key!r}"))
             elif "{{" in str(value) or "{%" in str(value):
                 try:
-                    templated[key] = self.env.from_string(str(value))
+                    templated[key] = value_template(self.env, str(value))
                 except jinja2.TemplateSyntaxError as exc:
                     problems.append(self._problem(where + ("environment", key), f"template syntax error: {exc.message}"))
             else:
@@ -431,6 +429,7 @@ class Renderer:
         env.update(st.environment)
         for key, template in st.templated.items():
             env[key] = self._render_value(template, host, variables, ("services", svc.name, "environment", key), problems)
+        self._check_env_leaks(host, svc.name, env, problems)
         udev_by_path = {f"/dev/{u.symlink}": u for u in host.udev}
         devices, groups = [], set()
         for logical in svc.devices:
@@ -463,10 +462,19 @@ class Renderer:
     def _render_value(self, template: jinja2.Template, host: Host, variables: Mapping[str, Any],
                       key: tuple[str, ...], problems: list[Problem]) -> str:
         try:
-            return template.render({**variables, "vars": variables, "host": host, "inventory_hostname": host.name})
+            return render_value(template, {**variables, "vars": variables, "host": host,
+                                           "inventory_hostname": host.name})
         except jinja2.TemplateError as exc:
-            problems.append(self._problem(key, f"robot {host.name}: {exc.message}"))
+            problems.append(self._problem(key, f"robot {host.name!r}: {exc.message}"))
             return ""
+
+    def _check_env_leaks(self, host: Host, service: str, env: Mapping[str, str], problems: list[Problem]) -> None:
+        """A vault value copied into an `environment:` value: reported at the fleet key that copies it."""
+        secrets = [s for s in host.secret_values if len(s) >= MIN_LEAK_CHECK]
+        for key in sorted(k for k, value in env.items() if any(s in value for s in secrets)):
+            problems.append(self._problem(("services", service, "environment", key), (
+                f"robot {host.name!r}: this value copies a vault secret into compose.yml, which is not secret; "
+                f"move {key} to the service's `secrets:` ({key}: <inventory var>) so it goes to .env only")))
 
     def _secrets(self, host: Host, problems: list[Problem]) -> list[tuple[str, str]]:
         """(env name, value) for every secret env of every service, sorted; values validated for .env."""
@@ -556,22 +564,26 @@ class Renderer:
             content = template.render(context)
         except (jinja2.TemplateError, _Rejected) as exc:
             raise RenderError([self._template_problem(exc, template, host)]) from exc
+        except Exception as exc:   # 1/0, recursion, a bound: the template's fault, never an internal error
+            raise RenderError([self._template_problem(jinja2.TemplateRuntimeError(describe(exc)), template, host,
+                                                      exc.__traceback__)]) from exc
         if out == ENV_FILE:
             return RenderedFile(out, content, mode=0o600, secret=bool(context["secrets"]))
         return RenderedFile(out, content)
 
-    def _template_problem(self, exc: Exception, template: jinja2.Template, host: Host) -> Problem:
+    def _template_problem(self, exc: Exception, template: jinja2.Template, host: Host,
+                          tb: Any = None) -> Problem:
         """Locate an error raised while rendering: the deepest frame that is template code."""
         file, line = template.filename or template.name or "?", None
         names = {t.filename for t in self.templates.values()}
-        for frame, lineno in traceback.walk_tb(exc.__traceback__):
+        for frame, lineno in traceback.walk_tb(tb or exc.__traceback__):
             filename = frame.f_code.co_filename
             if filename in names or filename.endswith(".j2"):   # included partials too
                 file, line = filename, lineno
         message = getattr(exc, "message", None) or str(exc)
         missing = re.search(r"'([^']+)' is undefined|has no attribute '([^']+)'", message)
         what = f"undefined name {next(g for g in missing.groups() if g)!r}" if missing else message
-        return Problem(file, line, "", f"robot {host.name}: {what}" + (f" ({message})" if missing else ""))
+        return Problem(file, line, "", f"robot {host.name!r}: {what}" + (f" ({message})" if missing else ""))
 
     @staticmethod
     def _check_leaks(host: Host, files: Iterable[RenderedFile]) -> None:

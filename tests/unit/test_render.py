@@ -328,8 +328,11 @@ def test_missing_secret_var_is_named() -> None:
 def test_secret_leaking_into_compose_is_refused() -> None:
     spec = make_spec(make_service(environment={"TOKEN": "{{ vault_token }}"}))
     host = make_host(vars={"vault_token": "hunter22"}, secret_values=frozenset({"hunter22"}))
-    with pytest.raises(RenderError, match="secret value would be written to compose.yml"):
+    with pytest.raises(RenderError, match="copies a vault secret into compose.yml") as caught:
         render(spec, host)
+    # reported at the fleet key that copies it, not where the robot is declared
+    assert [p.key for p in caught.value.problems] == ["services.driver.environment.TOKEN"]
+    assert "hunter22" not in str(caught.value)
 
 
 # ------------------------------------------------------------ metacharacters
@@ -396,7 +399,7 @@ def test_logrotate_covers_the_log_dirs(root: str, user: str | None, expected: st
 @pytest.mark.parametrize("name,value", [("dds_lease_duration", "10s"), ("logrotate_keep", True),
                                         ("logrotate_size", "50 MB"), ("dds_socket_buffer", "lots")])
 def test_bad_tunable_vars_are_named(name: str, value: Any) -> None:
-    with pytest.raises(RenderError, match=f"robot1: {name} must be"):
+    with pytest.raises(RenderError, match=f"robot 'robot1': {name} must be"):
         render(make_spec(), make_host(vars={name: value}))
 
 
@@ -449,7 +452,7 @@ def test_undefined_variable_names_template_line_robot_and_name(tmp_path: Path) -
 
 def test_undefined_variable_in_fleet_env_template() -> None:
     spec = make_spec(make_service(environment={"X": "{{ missing_var }}"}))
-    with pytest.raises(RenderError, match="robot1: 'missing_var' is undefined"):
+    with pytest.raises(RenderError, match="robot 'robot1': 'missing_var' is undefined"):
         render(spec, make_host())
 
 
