@@ -23,16 +23,13 @@ import xml.etree.ElementTree as ET
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import yaml
 
 from rosdeploy.errors import Problem
 from rosdeploy.fleet import problem_at, size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
-
-if TYPE_CHECKING:   # project.py imports this module
-    from rosdeploy.project import Project
 
 SEVERITIES = ("error", "warning", "info")
 ROBOTS = "{robots}"
@@ -94,10 +91,14 @@ class Context:
 
 # ------------------------------------------------------------------ running
 
-def run_checks(project: Project, hosts: Sequence[Host], releases: Iterable[RenderedRelease] | Mapping[str, RenderedRelease],
-               *, rules: Iterable[Rule] | None = None) -> list[Problem]:
-    """Every finding of every rule, merged across robots, sorted by severity, file and line."""
-    ctx = make_context(project.spec, hosts, tuple(project.inventory.hosts.values()), releases)
+def run_checks(spec: FleetSpec, hosts: Sequence[Host],
+               releases: Iterable[RenderedRelease] | Mapping[str, RenderedRelease], *,
+               all_hosts: Sequence[Host] = (), rules: Iterable[Rule] | None = None) -> list[Problem]:
+    """Every finding of every rule, merged across robots, sorted by severity, file and line.
+
+    `all_hosts` is the whole inventory (robots outside --limit still talk DDS); default `hosts`.
+    """
+    ctx = make_context(spec, hosts, all_hosts, releases)
     found: dict[Problem, list[str]] = defaultdict(list)   # a finding -> the robots it was found on
     for r in (RULES.values() if rules is None else rules):
         for problem, robot in _run_rule(r, ctx):

@@ -74,9 +74,8 @@ def run(rule_id: str, *, fleet: FleetSpec | None = None, hosts: list[Host] | Non
             svc.pop(key, None)
         else:
             svc[key] = value
-    project = SimpleNamespace(spec=fleet or spec(), inventory=SimpleNamespace(hosts={h.name: h for h in hosts}))
     rels = releases if releases is not None else [release(h, svc) for h in hosts]
-    return run_checks(project, hosts, rels, rules=[RULES[rule_id]])
+    return run_checks(fleet or spec(), hosts, rels, rules=[RULES[rule_id]])
 
 
 def fires(rule_id: str, **kw: Any) -> Any:
@@ -104,8 +103,7 @@ def test_domain_id_duplicate_on_one_network() -> None:
 
 def test_domain_id_duplicate_counts_robots_outside_the_limit() -> None:
     a, b = host("amr-1"), host("amr-22")
-    project = SimpleNamespace(spec=spec(), inventory=SimpleNamespace(hosts={"amr-1": a, "amr-22": b}))
-    found = run_checks(project, [b], [release(b)], rules=[RULES["domain-id-duplicate"]])
+    found = run_checks(spec(), [b], [release(b)], all_hosts=[a, b], rules=[RULES["domain-id-duplicate"]])
     assert len(found) == 1 and "amr-1" in found[0].message
 
 
@@ -337,7 +335,7 @@ def test_findings_are_sorted_errors_first() -> None:
     svc = dict(GOOD_SERVICE, restart="no", user="root")
     svc.pop("cpus")
     project = SimpleNamespace(spec=spec(), inventory=SimpleNamespace(hosts={h.name: h}))
-    found = run_checks(project, [h], [release(h, svc)])
+    found = run_checks(project.spec, [h], [release(h, svc)])
     assert [p.severity for p in found] == sorted((p.severity for p in found), key=checks.SEVERITIES.index)
     assert {p.rule for p in found} == {"restart-missing", "user-root", "resources-missing"}
 
@@ -376,5 +374,5 @@ def test_every_rule_is_in_the_fleet_file_reference() -> None:
 def test_odd_compose_shapes_from_user_templates_never_crash(service: dict) -> None:
     h = host()
     project = SimpleNamespace(spec=spec(), inventory=SimpleNamespace(hosts={h.name: h}))
-    found = run_checks(project, [h], [release(h, service)])
+    found = run_checks(project.spec, [h], [release(h, service)])
     assert all(p.rule in RULES for p in found)
