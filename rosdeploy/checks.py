@@ -25,9 +25,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
-import yaml
-
-from rosdeploy.errors import Problem
+from rosdeploy import yamlsrc
+from rosdeploy.errors import InputError, Problem
 from rosdeploy.fleet import problem_at, size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
 
@@ -183,12 +182,13 @@ def parse_release(host: Host, release: RenderedRelease) -> Target:
     env = parse_env(names[".env"].content) if ".env" in names else {}
     if "compose.yml" not in names:
         return Target(host, release, env, None, None, "no compose.yml was rendered")
+    if release.compose_data is not None:   # the built-in template's output, as data: no parse
+        return Target(host, release, env, interpolate(release.compose_data, env), release.compose_data)
     try:
-        raw = yaml.safe_load(names["compose.yml"].content)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}: " if mark else ""
-        return Target(host, release, env, None, None, f"{where}{getattr(exc, 'problem', None) or exc}")
+        raw = yamlsrc.load_data(names["compose.yml"].content, "compose.yml")
+    except InputError as exc:
+        p = exc.problems[0]
+        return Target(host, release, env, None, None, f"line {p.line}: {p.message}" if p.line else p.message)
     if not isinstance(raw, dict):
         return Target(host, release, env, None, None, "it is not a mapping")
     return Target(host, release, env, interpolate(raw, env), raw)
@@ -215,7 +215,7 @@ def interpolate(value: Any, env: Mapping[str, str]) -> Any:
         return {k: interpolate(v, env) for k, v in value.items()}
     if isinstance(value, list):
         return [interpolate(v, env) for v in value]
-    if not isinstance(value, str):
+    if not isinstance(value, str) or "$" not in value:
         return value
 
     def one(m: re.Match) -> str:

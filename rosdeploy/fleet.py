@@ -469,6 +469,7 @@ SERVICE = {
     "privileged": _boolean, "allow_privileged": _boolean,
     "profiles": _listof(_string(NAME_RE, "profile name"), "profile names"),
     "compose": _compose_extra,
+    "compose_interpolate": _boolean,
 }
 SECTIONS: dict[str, Mapping[str, Convert]] = {
     "ssh": {"known_hosts": Reader.local_path, "config": Reader.local_path,
@@ -674,6 +675,7 @@ def _service(name: str, d: dict, version: str) -> Service:
         depends_on=d.get("depends_on", ()), topics=d.get("topics", ()), user=d.get("user"),
         privileged=d.get("privileged", False), allow_privileged=d.get("allow_privileged", False),
         profiles=d.get("profiles", ()), extra=frozen_map(d.get("compose")),
+        compose_interpolate=d.get("compose_interpolate", False),
     )
 
 

@@ -94,6 +94,7 @@ class Service:
     allow_privileged: bool = False          # explicit opt-in the check rule wants
     profiles: tuple[str, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=frozen_map)   # passed through to compose verbatim
+    compose_interpolate: bool = False       # `$` in `extra` is compose interpolation (else written `$$`)
 
 
 @dataclass(frozen=True)
@@ -176,6 +177,9 @@ class RenderedRelease:
     files: tuple[RenderedFile, ...]     # sorted by name
     images: tuple[str, ...]             # full refs to pull, sorted, e.g. "registry.local:5000/demo/driver:1.0.0"
     secret_values: frozenset[str] = frozenset()
+    # compose.yml as data when the built-in template wrote it (rosdeploy.compose_data), so the
+    # checks need not parse it back; None for a user's own compose template. Not part of the digest.
+    compose_data: Any = field(default=None, compare=False, repr=False)
 
     @property
     def digest(self) -> str:

@@ -24,6 +24,7 @@ from xml.sax.saxutils import escape as _xml_escape
 import jinja2
 import yaml
 
+from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
@@ -209,6 +210,7 @@ class ServiceView:
     volumes: tuple[str, ...]                # the user's bind mounts, after rosdeploy's own
     labels: tuple[tuple[str, str], ...]
     extra_yaml: str                         # `extra`, YAML-dumped and indented for the service block
+    extra: Mapping[str, Any]                # `extra` as data, `$` escaped unless compose_interpolate
 
 
 @dataclass(frozen=True)
@@ -236,11 +238,23 @@ class _Static:
     healthcheck: HealthView | None
     labels: tuple[tuple[str, str], ...]
     extra_yaml: str
+    extra: Mapping[str, Any]
 
 
-class _NoAliasDumper(yaml.SafeDumper):
+class _Dumper(getattr(yaml, "CSafeDumper", yaml.SafeDumper)):  # type: ignore[misc]
+    """libyaml's emitter where PyYAML has it; never anchors and aliases (compose v1 chokes on some)."""
+
     def ignore_aliases(self, data: Any) -> bool:
         return True
+
+
+def _escape_dollars(value: Any) -> Any:
+    """`compose:` values are literal unless the service opts in: `$` -> `$$` in every string value."""
+    if isinstance(value, dict):
+        return {k: _escape_dollars(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_escape_dollars(v) for v in value]
+    return value.replace("$", "$$") if isinstance(value, str) else value
 
 
 def _size_bytes(text: str) -> int:
@@ -295,6 +309,8 @@ class Renderer:
                    LOGROTATE_FILE: "logrotate.conf.j2", UDEV_FILE: "udev.rules.j2"}
         outputs.update(self._user_only_templates(outputs.values()))
         self.templates = {out: self._compile(name) for out, name in sorted(outputs.items())}
+        compose_file = self.templates[COMPOSE_FILE].filename or ""
+        self.builtin_compose = Path(compose_file).resolve().parent == TEMPLATE_DIR.resolve()
         self.statics = tuple(self._static(s) for s in spec.services)
         self.images = tuple(sorted({s.image for s in self.statics}))
         self.image_vars = self._image_vars()
@@ -368,9 +384,9 @@ class Renderer:
         if problems:
             raise RenderError(problems)
         hc = svc.healthcheck
-        extra = ""
+        extra, extra_data = "", dict(svc.extra) if svc.compose_interpolate else _escape_dollars(dict(svc.extra))
         if svc.extra:
-            dumped = yaml.dump(dict(svc.extra), Dumper=_NoAliasDumper, sort_keys=True,
+            dumped = yaml.dump(extra_data, Dumper=_Dumper, sort_keys=True,
                                default_flow_style=False, allow_unicode=True, width=1 << 16)
             extra = "".join(f"    {line}\n" for line in dumped.splitlines())
         return _Static(
@@ -379,7 +395,7 @@ class Renderer:
             healthcheck=HealthView(tuple(hc.test), hc.interval, hc.timeout, hc.retries, hc.start_period) if hc else None,
             labels=(("io.rosdeploy.project", spec.project), ("io.rosdeploy.service", svc.name),
                     ("io.rosdeploy.version", spec.version)),
-            extra_yaml=extra)
+            extra_yaml=extra, extra=extra_data)
 
     def _image_vars(self) -> tuple[tuple[str, str], ...]:
         owners: dict[str, str] = {}
@@ -404,7 +420,8 @@ class Renderer:
         self._check_leaks(host, files)
         return RenderedRelease(host=host.name, project=self.spec.project, version=self.spec.version,
                                files=tuple(files), images=self.images,
-                               secret_values=frozenset(value for _, value in context["secrets"]))
+                               secret_values=frozenset(value for _, value in context["secrets"]),
+                               compose_data=compose_data(context) if self.builtin_compose else None)
 
     def _context(self, host: Host, problems: list[Problem]) -> dict[str, Any]:
         """What the templates see; every problem found on the way goes to `problems`."""
@@ -457,7 +474,7 @@ class Renderer:
             depends_on=tuple(sorted(svc.depends_on)), devices=tuple(devices), group_add=tuple(sorted(groups)),
             user=svc.user, privileged=svc.privileged, profiles=tuple(svc.profiles), gpu=gpu,
             shm_size=shm, log_dir=f"../../logs/{svc.name}", volumes=svc.volumes, labels=st.labels,
-            extra_yaml=st.extra_yaml)
+            extra_yaml=st.extra_yaml, extra=st.extra)
 
     def _render_value(self, template: jinja2.Template, host: Host, variables: Mapping[str, Any],
                       key: tuple[str, ...], problems: list[Problem]) -> str:

@@ -93,6 +93,22 @@ def load(path: str | Path, text: str | None = None) -> Doc:
     return Doc(path, _build(node, (), lines, path, _Constructor()), lines)
 
 
+def load_data(text: str, path: str = "<text>") -> Any:
+    """Plain values of a YAML text (no line map), with load()'s bounds: for files rosdeploy wrote itself."""
+    try:
+        _check_depth(text)
+        node = yaml.compose(text, Loader=_Composer)
+    except yaml.YAMLError as exc:
+        raise InputError([Problem(path, _error_line(exc, text), "", f"invalid YAML: {_error_text(exc)}")]) from exc
+    if node is None:
+        return None
+    _check_expansion(node, path)
+    try:
+        return _Constructor().construct_document(node)
+    except (yaml.YAMLError, TypeError) as exc:   # TypeError: an unhashable (list) key
+        raise InputError([Problem(path, node.start_mark.line + 1, "", f"invalid YAML: {exc}")]) from exc
+
+
 def read_text(path: str) -> str:
     """A file's text as UTF-8; an unreadable file or a stray byte is a file:line problem (never its content)."""
     try:
