@@ -98,13 +98,14 @@ def run_checks(spec: FleetSpec, hosts: Sequence[Host],
     `all_hosts` is the whole inventory (robots outside --limit still talk DDS); default `hosts`.
     """
     ctx = make_context(spec, hosts, all_hosts, releases)
-    found: dict[Problem, list[str]] = defaultdict(list)   # a finding -> the robots it was found on
-    for r in (RULES.values() if rules is None else rules):
+    found: dict[Problem, dict[str, None]] = defaultdict(dict)   # a finding -> the robots, in order (a set
+    for r in (RULES.values() if rules is None else rules):       # with order: 5,000 robots share findings)
         for problem, robot in _run_rule(r, ctx):
-            robots = found[problem]
-            if robot and robot not in robots:
-                robots.append(robot)
-    merged = [_with_robots(p, robots) for p, robots in found.items()]
+            if robot:
+                found[problem][robot] = None
+            else:
+                found[problem]
+    merged = [_with_robots(p, list(robots)) for p, robots in found.items()]
     return sorted(merged, key=sort_key)
 
 
@@ -183,7 +184,8 @@ def parse_release(host: Host, release: RenderedRelease) -> Target:
     if "compose.yml" not in names:
         return Target(host, release, env, None, None, "no compose.yml was rendered")
     if release.compose_data is not None:   # the built-in template's output, as data: no parse
-        return Target(host, release, env, interpolate(release.compose_data, env), release.compose_data)
+        raw, resolved = release.compose_data
+        return Target(host, release, env, resolved, raw)
     try:
         raw = yamlsrc.load_data(names["compose.yml"].content, "compose.yml")
     except InputError as exc:

@@ -13,18 +13,44 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 
-def _lit(value: Any) -> str:
-    """compose_str's value: fleet values are literal, so `$` is written `$$`."""
-    return str(value).replace("$", "$$")
+class _Raw:
+    """The file as written: literals with `$$`, .env references as `${NAME:?...}`."""
+
+    @staticmethod
+    def lit(value: Any) -> str:
+        return str(value).replace("$", "$$")   # compose_str
+
+    @staticmethod
+    def ref(name: str) -> str:
+        return f"${{{name}:?{name} must be set in .env}}"   # env_ref
+
+    def extra(self, svc: Any) -> Mapping[str, Any]:
+        return svc.extra
 
 
-def _ref(name: str) -> str:
-    """env_ref's value."""
-    return f"${{{name}:?{name} must be set in .env}}"
+class _Resolved(_Raw):
+    """The file as compose reads it, interpolated with the robot's .env (checks.interpolate's result)."""
+
+    def __init__(self, env: Mapping[str, str]) -> None:
+        self.env = env
+
+    @staticmethod
+    def lit(value: Any) -> str:
+        return str(value)                       # `$$` reads back as `$`
+
+    def ref(self, name: str) -> str:
+        return self.env.get(name) or ""
+
+    def extra(self, svc: Any) -> Mapping[str, Any]:
+        from rosdeploy.checks import interpolate
+        return interpolate(svc.extra, self.env)
 
 
-def compose_data(ctx: Mapping[str, Any]) -> dict[str, Any]:
-    """The parsed form of compose.yml.j2 rendered with `ctx` (Renderer._context)."""
+def compose_data(ctx: Mapping[str, Any], env: Mapping[str, str] | None = None) -> dict[str, Any]:
+    """The parsed form of compose.yml.j2 rendered with `ctx` (Renderer._context); with `env` (the
+    robot's .env), that form interpolated the way compose reads it."""
+    mode = _Raw() if env is None else _Resolved(env)
+    _lit, _ref = mode.lit, mode.ref
     env = {"ROS_DOMAIN_ID": _ref("ROS_DOMAIN_ID"), "RMW_IMPLEMENTATION": _ref("RMW_IMPLEMENTATION"),
            **{key: _lit(value) for key, value in ctx["dds_env"]}, "ROS_LOG_DIR": "/ros_log"}
     common: dict[str, Any] = {"environment": env}
@@ -36,14 +62,14 @@ def compose_data(ctx: Mapping[str, Any]) -> dict[str, Any]:
     common["logging"] = {"driver": "json-file", "options": {"max-size": _lit(ctx["log_max_size"]),
                                                             "max-file": _lit(ctx["log_max_file"])}}
     out: dict[str, Any] = {"x-ros-common": common,
-                           "services": {svc.name: _service(svc, ctx, common) for svc in ctx["services"]}}
+                           "services": {svc.name: _service(svc, ctx, common, mode) for svc in ctx["services"]}}
     if ctx["network_mode"] == "bridge":
         out["networks"] = {"ros": {"driver": "bridge"}}
     return out
 
 
-def _service(svc: Any, ctx: Mapping[str, Any], common: Mapping[str, Any]) -> dict[str, Any]:
-    dds = ctx["dds_file"]
+def _service(svc: Any, ctx: Mapping[str, Any], common: Mapping[str, Any], mode: _Raw) -> dict[str, Any]:
+    dds, _lit, _ref = ctx["dds_file"], mode.lit, mode.ref
     out: dict[str, Any] = {**common, "image": _lit(svc.image)}
     if svc.command is not None:
         out["command"] = [_lit(w) for w in svc.command]
@@ -78,5 +104,5 @@ def _service(svc: Any, ctx: Mapping[str, Any], common: Mapping[str, Any]) -> dic
         out["deploy"] = {"resources": {"reservations": {"devices": [
             {"driver": "nvidia", "count": 1, "capabilities": ["gpu"]}]}}}
     out["labels"] = {key: _lit(value) for key, value in svc.labels}
-    out.update(svc.extra)
+    out.update(mode.extra(svc))
     return out

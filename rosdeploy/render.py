@@ -93,9 +93,15 @@ class _Rejected(ValueError):
 
 # ------------------------------------------------------------------- filters
 
+_PLAIN = re.compile(r"[A-Za-z0-9 _./:@%+,=${}()*!?#&~^\[\]-]*")
+
+
 def yaml_str(value: Any) -> str:
     """A double-quoted YAML scalar that parses back to str(value), whatever it holds."""
-    text = json.dumps(str(value), ensure_ascii=False)   # JSON strings are YAML double-quoted scalars
+    text = str(value)
+    if _PLAIN.fullmatch(text):   # nothing to escape in a double-quoted scalar (the common case)
+        return f'"{text}"'
+    text = json.dumps(text, ensure_ascii=False)   # JSON strings are YAML double-quoted scalars
     return _YAML_UNSAFE.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
 
 
@@ -335,7 +341,8 @@ class Renderer:
         """Sandboxed (rosdeploy.sandbox): fleet values and template folders are configuration, not code."""
         loaders = [jinja2.FileSystemLoader(str(self.override))] if self.override else []
         loaders.append(jinja2.FileSystemLoader(str(TEMPLATE_DIR)))
-        env = Sandbox(loader=jinja2.ChoiceLoader(loaders), trim_blocks=True, lstrip_blocks=True,
+        env = Sandbox(plain_types=(ServiceView, HealthView, UdevView), loader=jinja2.ChoiceLoader(loaders),
+                      trim_blocks=True, lstrip_blocks=True,
                       keep_trailing_newline=True, auto_reload=False)
         env.filters.update(FILTERS)
         return env
@@ -421,7 +428,15 @@ class Renderer:
         return RenderedRelease(host=host.name, project=self.spec.project, version=self.spec.version,
                                files=tuple(files), images=self.images,
                                secret_values=frozenset(value for _, value in context["secrets"]),
-                               compose_data=compose_data(context) if self.builtin_compose else None)
+                               compose_data=self._compose_data(context, files))
+
+    def _compose_data(self, context: Mapping[str, Any], files: list[RenderedFile]) -> Any:
+        """(as written, as compose reads it with the .env) for the built-in compose template."""
+        if not self.builtin_compose:
+            return None
+        from rosdeploy.checks import parse_env
+        env = parse_env(next(f.content for f in files if f.name == ENV_FILE))
+        return compose_data(context), compose_data(context, env)
 
     def _context(self, host: Host, problems: list[Problem]) -> dict[str, Any]:
         """What the templates see; every problem found on the way goes to `problems`."""

@@ -42,7 +42,11 @@ class Sandbox(ImmutableSandboxedEnvironment):
 
     intercepted_binops = frozenset({"*", "**", "%"})
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, plain_types: tuple[type, ...] = (), **kwargs: Any) -> None:
+        """`plain_types`: frozen dataclasses of plain values whose public fields templates read in
+        bulk; their attribute access skips the sandbox's per-access checks (half the render time
+        of 5,000 robots), which could only ever allow a name without a leading `_` on them."""
+        self.plain_types = frozenset(plain_types)
         kwargs.setdefault("undefined", jinja2.StrictUndefined)
         kwargs.setdefault("autoescape", False)
         super().__init__(**kwargs)
@@ -51,6 +55,14 @@ class Sandbox(ImmutableSandboxedEnvironment):
         for name in _WIDTH_FILTERS:
             self.filters[name] = _bounded_filter(self.filters[name])
         self.filters["format"] = _checked_format(self.filters["format"])
+
+    def getattr(self, obj: Any, attribute: str) -> Any:
+        if type(obj) in self.plain_types and not attribute.startswith("_"):
+            try:
+                return getattr(obj, attribute)
+            except AttributeError:
+                pass
+        return super().getattr(obj, attribute)
 
     def call_binop(self, context: Any, operator_: str, left: Any, right: Any) -> Any:
         if operator_ == "*":

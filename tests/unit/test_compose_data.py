@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from rosdeploy.checks import interpolate, parse_env
 from rosdeploy.model import HealthCheck
 from rosdeploy.project import load_project
 from rosdeploy.render import Renderer
@@ -36,7 +37,9 @@ SHAPES = {
 def test_compose_data_is_the_rendered_file_parsed(name: str) -> None:
     spec, host = SHAPES[name]
     release = Renderer(spec).render(host)
-    assert release.compose_data == yaml.safe_load(release.file("compose.yml").content)
+    raw, resolved = release.compose_data
+    assert raw == yaml.safe_load(release.file("compose.yml").content)
+    assert resolved == interpolate(raw, parse_env(release.file(".env").content))
 
 
 def test_the_shipped_example_too() -> None:
@@ -45,7 +48,7 @@ def test_the_shipped_example_too() -> None:
     renderer = Renderer(project.spec)
     for host in project.targets():
         release = renderer.render(host)
-        assert release.compose_data == yaml.safe_load(release.file("compose.yml").content), host.name
+        assert release.compose_data[0] == yaml.safe_load(release.file("compose.yml").content), host.name
 
 
 def test_a_user_compose_template_is_parsed_back_instead(tmp_path: Path) -> None:
