@@ -170,7 +170,7 @@ def _with_robots(p: Problem, robots: list[str]) -> Problem:
 def host_problem(host: Host, key: str, message: str) -> Problem:
     """A problem located where the robot is declared in the inventory (Host.source is "file:line")."""
     file, _, line = host.source.rpartition(":")
-    if not line.isdigit():
+    if not (line.isascii() and line.isdigit()):
         return Problem(host.source or "inventory", None, key, message)
     return Problem(file, int(line), key, message)
 

@@ -13,6 +13,7 @@ syntax of the file it lands in.
 """
 from __future__ import annotations
 
+import ipaddress
 import json
 import re
 import traceback
@@ -80,9 +81,9 @@ TUNABLES: dict[str, tuple[Any, Any, str]] = {
     # the containers of a release start together) then waits up to 3 s to discover it.
     "dds_initial_announcements": (15, _int_at_least(1), "a number of announcements"),
     "dds_initial_announcement_period_ms": (200, _int_at_least(1), "whole milliseconds"),
-    "dds_socket_buffer": ("10MB", lambda v: bool(re.fullmatch(r"\d+(\.\d+)?\s*([kKMG]i?)?B?", str(v))),
+    "dds_socket_buffer": ("10MB", lambda v: bool(re.fullmatch(r"[0-9]+(\.[0-9]+)?[ \t]*([kKMG]i?)?B?", str(v))),
                           "a size like 10MB or 8MiB"),
-    "logrotate_size": ("50M", lambda v: bool(re.fullmatch(r"\d+[kMG]?", str(v))), "a size like 50M"),
+    "logrotate_size": ("50M", lambda v: bool(re.fullmatch(r"[0-9]+[kMG]?", str(v))), "a size like 50M"),
     "logrotate_keep": (5, _int_at_least(0), "a number of rotated files"),
 }
 
@@ -272,7 +273,7 @@ def _size_bytes(text: str) -> int:
 
 def _host_where(host: Host) -> tuple[str, int | None]:
     file, _, line = host.source.rpartition(":")
-    return (file, int(line)) if file and line.isdigit() else (host.source or "inventory", None)
+    return (file, int(line)) if file and line.isascii() and line.isdigit() else (host.source or "inventory", None)
 
 
 def _host_problem(host: Host, key: str, message: str) -> Problem:
@@ -546,6 +547,12 @@ class Renderer:
         if not isinstance(extra, (list, tuple)) or not all(isinstance(p, str) and p for p in extra):
             problems.append(_host_problem(host, "dds_peers", "dds_peers must be a list of robot addresses"))
             return ()
+        bad = [p for p in extra if not _is_peer_address(p)]
+        if bad:
+            problems.append(_host_problem(host, "dds_peers", (
+                f"{', '.join(repr(p) for p in bad[:5])} {'is' if len(bad) == 1 else 'are'} not an IP address or "
+                "host name: list the other robots' addresses, e.g. [10.0.0.12, amr-2.local]")))
+            return ()
         own = [s.name for s in self.spec.services] if self.spec.network_mode == "bridge" else []
         seen: dict[str, None] = {}
         for peer in [*own, *extra]:
@@ -625,6 +632,19 @@ class Renderer:
         if leaked:
             raise RenderError([_host_problem(host, "", f"a secret value would be written to {name}; pass it with "
                                                        "`secrets:` so it goes to .env only") for name in leaked])
+
+
+_HOSTNAME = re.compile(r"(?=.{1,253}\Z)[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
+                       r"(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*\.?", re.ASCII)
+
+
+def _is_peer_address(peer: str) -> bool:
+    """An IPv4/IPv6 address or an RFC 1123 host name: what a DDS locator or <Peer address> takes."""
+    try:
+        ipaddress.ip_address(peer)
+        return True
+    except ValueError:
+        return bool(_HOSTNAME.fullmatch(peer))
 
 
 def image_var(service: str) -> str:
