@@ -12,6 +12,7 @@ so the key reference in the README (The fleet file) and the code read the same.
 from __future__ import annotations
 
 import difflib
+import math
 import os
 import re
 import shlex
@@ -466,6 +467,14 @@ def _memory(r: Reader, kp: KeyPath, value: Any) -> Any:
     return value
 
 
+def _cpus(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """A CPU limit: a finite number above 0 (`.inf` would be written as `inf` for compose)."""
+    value = _positive(r, kp, value)
+    if value is not BAD and not math.isfinite(value):
+        return r.error(kp, f"must be a finite number of CPUs, e.g. 1.5; got {value}")
+    return value
+
+
 def _deploy_root(r: Reader, kp: KeyPath, value: Any) -> Any:
     """deploy_root: the remote-path pattern (no shell metacharacters), and no `..` anywhere."""
     value = _string(REMOTE_PATH_RE, "path on the robot (absolute or under ~)")(r, kp, value)
@@ -524,7 +533,7 @@ SERVICE = {
     "devices": _listof(_string(DEVICE_RE, "device name"), "logical device names"),
     "volumes": _listof(_mount, "bind mounts"),
     "gpu": _boolean, "restart": _restart,
-    "resources": _section({"memory": _memory, "cpus": _positive}),
+    "resources": _section({"memory": _memory, "cpus": _cpus}),
     "healthcheck": _healthcheck,
     "depends_on": _listof(_string(NAME_RE, "service name"), "service names"),
     "topics": _listof(_topic, "topics"),

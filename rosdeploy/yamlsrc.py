@@ -27,6 +27,9 @@ MAX_EXPANSION = 10         # aliases may multiply the document's nodes this much
 MIN_BUDGET = 100_000       # ... but a small file may always expand to this many nodes
 
 
+_COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
+
+
 class Encrypted(str):
     """A `!vault`-tagged scalar (Ansible's encrypt_string): still ciphertext.
 
@@ -105,7 +108,7 @@ def load_data(text: str, path: str = "<text>") -> Any:
     _check_expansion(node, path)
     try:
         return _Constructor().construct_document(node)
-    except (yaml.YAMLError, TypeError) as exc:   # TypeError: an unhashable (list) key
+    except (yaml.YAMLError, TypeError, ValueError) as exc:   # an unhashable key; an int of 4,300+ digits
         raise InputError([Problem(path, node.start_mark.line + 1, "", f"invalid YAML: {exc}")]) from exc
 
 
@@ -206,6 +209,9 @@ def _children(node: yaml.Node) -> list[yaml.Node]:
 
 def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: str, c: _Constructor) -> Any:
     lines.setdefault(keypath, node.start_mark.line + 1)
+    if not isinstance(node, yaml.ScalarNode) and node.tag not in _COLLECTION_TAGS:
+        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
+                                  f"unsupported YAML tag {node.tag!r}: write a plain list or mapping")])
     if isinstance(node, yaml.MappingNode):
         return _build_mapping(node, keypath, lines, path, c)
     if isinstance(node, yaml.SequenceNode):
@@ -215,6 +221,9 @@ def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: s
     except yaml.YAMLError as exc:
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
                                   f"invalid value: {_error_text(exc)}")]) from exc
+    except ValueError as exc:   # an integer of over 4,300 digits (Python's own bound)
+        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
+                                  f"invalid value: {str(exc)[:120]}")]) from exc
 
 
 def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath, int], path: str,
