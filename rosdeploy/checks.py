@@ -1,4 +1,4 @@
-"""The deployment checklist of docs/ros2-docker-practices.md, as rules.
+"""The ROS 2 deployment checklist (README: "What `validate` and `check` enforce"), as rules.
 
 Each rule is a small function registered with an id, a severity and a fix. They
 run over the fleet spec, the inventory hosts and what each robot would really
@@ -163,7 +163,8 @@ def _stamp(p: Problem, r: Rule) -> Problem:
 def _with_robots(p: Problem, robots: list[str]) -> Problem:
     if ROBOTS not in p.message:
         return p
-    shown = ", ".join(robots[:5]) + (f" (+{len(robots) - 5} more)" if len(robots) > 5 else "")
+    # quoted: a robot name is the inventory's text, and one with a newline must not split the message
+    shown = ", ".join(map(repr, robots[:5])) + (f" (+{len(robots) - 5} more)" if len(robots) > 5 else "")
     return Problem(p.file, p.line, p.key, p.message.replace(ROBOTS, shown), p.severity, p.rule)
 
 
@@ -272,8 +273,8 @@ def _domain_duplicates(ctx: Context) -> Iterator[Problem]:
         first = seen.setdefault((host.network, host.ros_domain_id), host)
         if first is not host:
             yield host_problem(host, "ros_domain_id", (
-                f"{host.name} and {first.name} ({first.source}) both use ros_domain_id {host.ros_domain_id} "
-                f"on network `{host.network}`: their DDS traffic would mix; give {host.name} an unused ID (0-101)"))
+                f"{host.name!r} and {first.name!r} ({first.source}) both use ros_domain_id {host.ros_domain_id} "
+                f"on network {host.network!r}: their DDS traffic would mix; give {host.name!r} an unused ID (0-101)"))
 
 
 @rule("domain-id-missing", "error", "host", "Every robot declares its ros_domain_id in the inventory.",
@@ -281,7 +282,7 @@ def _domain_duplicates(ctx: Context) -> Iterator[Problem]:
 def _domain_missing(ctx: Context, host: Host) -> Iterator[Problem]:
     if "ros_domain_id" not in host.vars:
         yield host_problem(host, "ros_domain_id", (
-            f"{host.name} declares no ros_domain_id: without one it would join domain 0 with every other "
+            f"{host.name!r} declares no ros_domain_id: without one it would join domain 0 with every other "
             "such robot; add `ros_domain_id: N` (0-101, unique on its network) to its host vars"))
 
 
@@ -302,7 +303,7 @@ def _domain_unsafe(ctx: Context, host: Host) -> Iterator[Problem]:
 
 def _domain_findings(host: Host, bad: Callable[[int], bool], message: str) -> Iterator[Problem]:
     if "ros_domain_id" in host.vars and bad(host.ros_domain_id):
-        yield host_problem(host, "ros_domain_id", message.format(name=host.name, id=host.ros_domain_id))
+        yield host_problem(host, "ros_domain_id", message.format(name=repr(host.name), id=host.ros_domain_id))
 
 
 @rule("device-undeclared", "error", "host", "Every device a service asks for is declared by the robot.",

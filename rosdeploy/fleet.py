@@ -47,6 +47,7 @@ REPOSITORY_RE = re.compile(rf"{_COMPONENT}(?:/{_COMPONENT})*")
 _DURATION_PART = re.compile(r"([0-9]+(?:\.[0-9]+)?)(ms|h|m|s)")   # ASCII digits only: int("²") fails
 _SIZE_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)([kmg])b?", re.IGNORECASE)
 _UNITS = {"ms": 0.001, "s": 1, "m": 60, "h": 3600}
+_SECRET_ENV_REF = re.compile(r"\$\{?ROSDEPLOY_VAULT_PASSWORD")
 _CONTROL = {"\n": "a newline", "\r": "a carriage return", "\0": "a NUL byte"}
 
 # rosdeploy sets these per robot (checklist item 8): a fleet file must not hard-code them.
@@ -174,6 +175,8 @@ class Reader:
         """A path on this machine: ~ and $VARS expanded, relative to the fleet file's folder."""
         if not isinstance(value, str) or not value.strip():
             return self.error(kp, f"must be a path (a string); got {_kind(value)}")
+        if _SECRET_ENV_REF.search(value):
+            return self.error(kp, "a path may not use the vault password variables: they are secrets")
         expanded = os.path.expandvars(value)
         unset = re.search(r"\$\{?([A-Za-z_][A-Za-z0-9_]*)", expanded)
         if unset:
@@ -609,12 +612,18 @@ def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[st
 def _check_paths(r: Reader, top: dict, inventory_overridden: bool) -> None:
     inv = top.get("inventory")
     if not inventory_overridden and isinstance(inv, str) and not Path(inv).exists():
-        r.error(("inventory",), f"the inventory {inv} does not exist: fix the path (relative to "
-                                "the fleet file) or pass -i")
+        r.error(("inventory",), f"the inventory {_as_written(r, 'inventory', inv)} does not exist: fix the path "
+                                "(relative to the fleet file) or pass -i")
     tpl = top.get("templates")
     if isinstance(tpl, str) and not Path(tpl).is_dir():
-        r.error(("templates",), f"{tpl} is not a directory: point `templates:` at a folder of *.j2 overrides "
-                                "(relative to the fleet file) or remove the key")
+        r.error(("templates",), f"{_as_written(r, 'templates', tpl)} is not a directory: point `templates:` at a "
+                                "folder of *.j2 overrides (relative to the fleet file) or remove the key")
+
+
+def _as_written(r: Reader, key: str, expanded: str) -> str:
+    """A path as the file wrote it when it used $VARS: an environment value never reaches a message."""
+    written = str(r.doc.data.get(key, expanded))
+    return repr(written) if "$" in written else expanded
 
 
 def _check_services(r: Reader, top: dict) -> None:

@@ -96,7 +96,7 @@ def test_domain_id_duplicate_on_one_network() -> None:
     a, b = host("amr-1", network="north"), host("amr-22", network="north")
     p = fires("domain-id-duplicate", hosts=[a, b])
     assert (p.file, p.line, p.key) == ("inventory/hosts.yml", 6, "ros_domain_id")
-    assert "amr-22 and amr-1 (inventory/hosts.yml:5) both use ros_domain_id 5 on network `north`" in p.message
+    assert "'amr-22' and 'amr-1' (inventory/hosts.yml:5) both use ros_domain_id 5 on network 'north'" in p.message
     silent("domain-id-duplicate", hosts=[a, replace(b, network="south")])
     silent("domain-id-duplicate", hosts=[a, host("amr-22", network="north", ros_domain_id=6)])
 
@@ -130,7 +130,7 @@ def test_device_undeclared_names_service_device_and_robots() -> None:
     lacking = [host("amr-1", devices=frozen_map()), host("amr-2", devices=frozen_map())]
     p = fires("device-undeclared", hosts=lacking)
     assert (p.file, p.key) == ("fleet.yml", "services.driver.devices[0]")
-    assert "needs device `motor`" in p.message and "amr-1, amr-2" in p.message
+    assert "needs device `motor`" in p.message and "'amr-1', 'amr-2'" in p.message
     assert "`motor: /dev/robot/motor` under their `devices:`" in p.message
     silent("device-undeclared")
 
@@ -327,7 +327,7 @@ def test_identical_findings_merge_across_robots() -> None:
     hosts = [host(f"amr-{i}", ros_domain_id=i) for i in range(1, 8)]
     found = run("restart-missing", hosts=hosts, restart="no")
     assert len(found) == 1
-    assert "amr-1, amr-2, amr-3, amr-4, amr-5 (+2 more)" in found[0].message
+    assert "'amr-1', 'amr-2', 'amr-3', 'amr-4', 'amr-5' (+2 more)" in found[0].message
 
 
 def test_findings_are_sorted_errors_first() -> None:

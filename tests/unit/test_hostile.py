@@ -435,3 +435,12 @@ def test_status_with_a_cert_authority_known_hosts_does_not_crash(capsys: pytest.
                                                                              "          ansible_port: 1"))
     code, text = cli(capsys, lab, "status")
     assert code == 3, text
+
+
+@pytest.mark.parametrize("key, value", [("templates", "$ROSDEPLOY_CANARY/t"), ("inventory", "${ROSDEPLOY_CANARY}"),
+                                        ("templates", "$ROSDEPLOY_VAULT_PASSWORD"),
+                                        ("inventory", "/x/${ROSDEPLOY_VAULT_PASSWORD}")])
+def test_environment_values_in_paths_never_reach_a_message(capsys: pytest.CaptureFixture, lab: Path, key: str,
+                                                            value: str) -> None:
+    edit(lab, lambda d: d.update({key: value}))
+    refused_everywhere(capsys, lab, f"fleet.yml:", key)   # cli() asserts neither value is printed
