@@ -29,7 +29,7 @@ from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
-from rosdeploy.sandbox import Sandbox, describe, render_value, value_template
+from rosdeploy.sandbox import ContainedLoader, Sandbox, describe, render_value, value_template
 from rosdeploy.yamlsrc import Doc
 
 # rosdeploy/templates is a link to the repo's top-level templates/ in a checkout, and a real
@@ -340,7 +340,7 @@ class Renderer:
 
     def _environment(self) -> jinja2.Environment:
         """Sandboxed (rosdeploy.sandbox): fleet values and template folders are configuration, not code."""
-        loaders = [jinja2.FileSystemLoader(str(self.override))] if self.override else []
+        loaders: list[jinja2.BaseLoader] = [ContainedLoader(str(self.override))] if self.override else []
         loaders.append(jinja2.FileSystemLoader(str(TEMPLATE_DIR)))
         env = Sandbox(plain_types=(ServiceView, HealthView, UdevView), loader=jinja2.ChoiceLoader(loaders),
                       trim_blocks=True, lstrip_blocks=True,
@@ -363,6 +363,8 @@ class Renderer:
             raise RenderError([Problem(exc.filename or name, exc.lineno, "", f"template syntax error: {exc.message}")]) from exc
         except jinja2.TemplateNotFound as exc:
             raise RenderError([self._problem(("templates",), f"template {exc.name} not found")]) from exc
+        except jinja2.TemplateError as exc:   # e.g. a link out of the template folder (sandbox.ContainedLoader)
+            raise RenderError([self._problem(("templates",), exc.message or str(exc))]) from exc
 
     def _static(self, svc: Service) -> _Static:
         spec, where = self.spec, ("services", svc.name)

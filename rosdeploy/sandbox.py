@@ -20,6 +20,7 @@ other template error: a file:key problem, exit 2.
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import jinja2
@@ -78,6 +79,30 @@ class Sandbox(ImmutableSandboxedEnvironment):
         if wrapped is not None:
             _check_format(str(getattr(value, "__self__", "")))
         return wrapped
+
+
+class ContainedLoader(jinja2.FileSystemLoader):
+    """A template folder whose files must stay inside it: a symlink to ~/.ssh/id_ed25519 or
+    /etc/shadow in a checked-out template folder would otherwise be rendered into a release
+    and uploaded to every robot. Files must be UTF-8 (a TemplateError otherwise, not a crash)."""
+
+    def get_source(self, environment: jinja2.Environment, template: str) -> tuple[str, str, Callable[[], bool]]:
+        source, filename, uptodate = _decoded(lambda: super(ContainedLoader, self).get_source(environment, template),
+                                              template)
+        roots = [Path(p).resolve() for p in self.searchpath]
+        if not any(Path(filename).resolve().is_relative_to(root) for root in roots):
+            # not TemplateNotFound: a ChoiceLoader would quietly fall back to the next folder
+            raise SecurityError(f"template {template} is a link to a file outside the template folder: copy the "
+                                "file into the folder instead")
+        return source, filename, uptodate
+
+
+def _decoded(get: Callable[[], Any], template: str) -> Any:
+    try:
+        return get()
+    except UnicodeDecodeError as exc:
+        raise jinja2.TemplateSyntaxError(f"byte 0x{exc.object[exc.start]:02x} is not UTF-8: save the template "
+                                         "as UTF-8", exc.object[:exc.start].count(b"\n") + 1, template) from None
 
 
 def value_template(env: jinja2.Environment, source: str) -> jinja2.Template:

@@ -444,3 +444,22 @@ def test_environment_values_in_paths_never_reach_a_message(capsys: pytest.Captur
                                                             value: str) -> None:
     edit(lab, lambda d: d.update({key: value}))
     refused_everywhere(capsys, lab, f"fleet.yml:", key)   # cli() asserts neither value is printed
+
+
+def test_a_template_linking_outside_its_folder_is_refused(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    (lab / "templates").mkdir()
+    secret = lab.parent / "id_ed25519"
+    secret.write_text("PRIVATE KEY canary-key-material\n")
+    (lab / "templates" / "stolen.j2").symlink_to(secret)
+    edit(lab, lambda d: d.update(templates="./templates"))
+    for command in ("validate", "check", "render"):
+        code, text = cli(capsys, lab, command)
+        assert code == 2 and "outside the template folder" in text and "canary-key-material" not in text
+    assert not (lab / "out").exists()
+
+
+def test_a_template_that_is_not_utf8_is_a_clean_error(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    (lab / "templates").mkdir()
+    (lab / "templates" / "logrotate.conf.j2").write_bytes(b"# ok\n# caf\xe9\n")
+    edit(lab, lambda d: d.update(templates="./templates"))
+    refused_everywhere(capsys, lab, "logrotate.conf.j2:2", "not UTF-8")
