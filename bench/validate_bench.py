@@ -48,6 +48,14 @@ def measure(fleet: Path, command: str, out: Path) -> tuple[float, float, int]:
     return wall, int(rss_text) / 1024, int(code_text)
 
 
+def startup() -> float:
+    """Seconds for `python -c 'import rosdeploy.cli'`: the floor of every command on this machine."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import rosdeploy.cli; rosdeploy.cli.build_parser()"], cwd=REPO,
+                   env={**os.environ, "PYTHONPATH": str(REPO)}, check=True)
+    return time.perf_counter() - t0
+
+
 # Runs argv, then prints "<exit code> <peak RSS of that child in KiB>".
 _PROBE = """
 import resource, subprocess, sys
@@ -60,14 +68,18 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", type=int, nargs="+", default=[500, 5000])
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--render-out", metavar="DIR", help="where render writes (default: beside the fleet, "
+                        "on disk; /dev/shm separates rosdeploy's time from the disk's)")
     args = parser.parse_args(argv)
     missed = 0
+    print(f"interpreter + imports alone: {startup():.2f} s")
     print(f"{'robots':>7} {'command':<9}{'median s':>9}{'best s':>8}{'peak MB':>9}  target")
     for robots in args.robots:
         with tempfile.TemporaryDirectory(prefix="rosdeploy-vbench-") as tmp:
             fleet = build_project(Path(tmp), robots)
             for command in COMMANDS:
-                runs = [measure(fleet, command, Path(tmp) / "out") for _ in range(args.runs)]
+                out = Path(args.render_out or tmp) / f"out-{robots}"
+                runs = [measure(fleet, command, out) for _ in range(args.runs)]
                 codes = {code for _, _, code in runs}
                 walls = [wall for wall, _, _ in runs]
                 peak = max(rss for _, rss, _ in runs)

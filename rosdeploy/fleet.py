@@ -762,4 +762,4 @@ def _service(name: str, d: dict, version: str) -> Service:
 
 def problem_at(spec: FleetSpec, keypath: KeyPath, message: str, **kw: Any) -> Problem:
     """A Problem located in the fleet file by key path (for checks that run after loading)."""
-    return Doc(spec.path, None, dict(spec.lines)).problem(keypath, message, **kw)
+    return Doc(spec.path, None, spec.lines).problem(keypath, message, **kw)   # type: ignore[arg-type]  # read only

@@ -326,7 +326,7 @@ class Renderer:
 
     def _problem(self, keypath: tuple[Any, ...], message: str) -> Problem:
         """A problem in the fleet file, at the line of the key when the loader recorded it."""
-        return Doc(self.spec.path, None, dict(self.spec.lines)).problem(keypath, message)
+        return Doc(self.spec.path, None, self.spec.lines).problem(keypath, message)  # type: ignore[arg-type]
 
     def _override_dir(self) -> Path | None:
         if not self.spec.templates:
@@ -342,7 +342,7 @@ class Renderer:
         """Sandboxed (rosdeploy.sandbox): fleet values and template folders are configuration, not code."""
         loaders: list[jinja2.BaseLoader] = [ContainedLoader(str(self.override))] if self.override else []
         loaders.append(jinja2.FileSystemLoader(str(TEMPLATE_DIR)))
-        env = Sandbox(plain_types=(ServiceView, HealthView, UdevView), loader=jinja2.ChoiceLoader(loaders),
+        env = Sandbox(plain_types=(ServiceView, HealthView, UdevView, Host, FleetSpec), loader=jinja2.ChoiceLoader(loaders),
                       trim_blocks=True, lstrip_blocks=True,
                       keep_trailing_newline=True, auto_reload=False)
         env.filters.update(FILTERS)

@@ -6,6 +6,8 @@ values. Values stay plain dicts/lists/scalars: nothing downstream has to know.
 """
 from __future__ import annotations
 
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +27,7 @@ _Composer = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 MAX_DEPTH = 200            # nesting levels (libyaml's composer recurses in C and would crash)
 MAX_EXPANSION = 10         # aliases may multiply the document's nodes this much ("billion laughs")
 MIN_BUDGET = 100_000       # ... but a small file may always expand to this many nodes
+MAX_FILE_BYTES = 64 << 20  # a 5,000-robot inventory is ~1 MiB
 
 
 _COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
@@ -115,9 +118,16 @@ def load_data(text: str, path: str = "<text>") -> Any:
 def read_text(path: str) -> str:
     """A file's text as UTF-8; an unreadable file or a stray byte is a file:line problem (never its content)."""
     try:
-        data = Path(path).read_bytes()
+        with open(path, "rb") as handle:
+            info = os.fstat(handle.fileno())
+            if not stat.S_ISREG(info.st_mode):   # /dev/zero, a FIFO: reading would never end
+                raise InputError([Problem(path, None, "", "not a regular file: give the path of a YAML file")])
+            data = handle.read(MAX_FILE_BYTES + 1)
     except OSError as exc:
         raise InputError([Problem(path, None, "", f"cannot read file: {exc.strerror}")]) from exc
+    if len(data) > MAX_FILE_BYTES:
+        raise InputError([Problem(path, None, "", f"larger than {MAX_FILE_BYTES >> 20} MiB: not a configuration "
+                                                  "file rosdeploy will read")])
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -355,9 +355,9 @@ def test_parse_env_and_interpolate() -> None:
 
 
 def test_dds_peers_reads_both_vendors() -> None:
-    assert dds_peers(FASTDDS_PEERS) == ["driver"]
-    assert dds_peers(CYCLONE_PEERS) == ["driver"]
-    assert dds_peers(NO_PEERS) == []
+    assert dds_peers(FASTDDS_PEERS) == ("driver",)
+    assert dds_peers(CYCLONE_PEERS) == ("driver",)
+    assert dds_peers(NO_PEERS) == ()
 
 
 def test_every_rule_is_in_the_fleet_file_reference() -> None:

@@ -463,3 +463,10 @@ def test_a_template_that_is_not_utf8_is_a_clean_error(capsys: pytest.CaptureFixt
     (lab / "templates" / "logrotate.conf.j2").write_bytes(b"# ok\n# caf\xe9\n")
     edit(lab, lambda d: d.update(templates="./templates"))
     refused_everywhere(capsys, lab, "logrotate.conf.j2:2", "not UTF-8")
+
+
+@pytest.mark.parametrize("path", ["/dev/zero", "/dev/null", "/", "/nonexistent/fleet.yml"])
+def test_a_fleet_path_that_is_no_file(capsys: pytest.CaptureFixture, path: str) -> None:
+    code = main(["validate", path])
+    text = "".join(capsys.readouterr())
+    assert code == 2 and path in text and "Traceback" not in text and "internal error" not in text
