@@ -179,7 +179,7 @@ def _check_expansion(root: yaml.Node, path: str) -> None:
     billion-laughs file is refused in microseconds and nothing is ever expanded.
     """
     sizes: dict[int, int] = {}
-    order = _postorder(root)
+    order = _postorder(root, path)
     budget = max(MIN_BUDGET, MAX_EXPANSION * len(order))
     for node in order:
         children = _children(node)
@@ -191,21 +191,29 @@ def _check_expansion(root: yaml.Node, path: str) -> None:
         sizes[id(node)] = size
 
 
-def _postorder(root: yaml.Node) -> list[yaml.Node]:
-    """Every distinct node once, children before parents, without recursion."""
-    seen: set[int] = set()
+def _postorder(root: yaml.Node, path: str) -> list[yaml.Node]:
+    """Every distinct node once, children before parents, without recursion; an alias inside
+    its own anchor (`a: &a [*a]`, a structure that contains itself) is refused at its line."""
+    state: dict[int, int] = {}          # 1: its children are being visited, 2: done
     out: list[yaml.Node] = []
     stack: list[tuple[yaml.Node, bool]] = [(root, False)]
     while stack:
         node, expanded = stack.pop()
         if expanded:
+            state[id(node)] = 2
             out.append(node)
             continue
-        if id(node) in seen:
+        if id(node) in state:
             continue
-        seen.add(id(node))
+        state[id(node)] = 1
         stack.append((node, True))
-        stack.extend((c, False) for c in _children(node) if id(c) not in seen)
+        for child in _children(node):
+            if state.get(id(child)) == 1:
+                raise InputError([Problem(path, child.start_mark.line + 1, "", (
+                    "an alias refers to the anchor it is inside of (a structure that contains itself): "
+                    "write the values out"))])
+            if id(child) not in state:
+                stack.append((child, False))
     return out
 
 

@@ -218,6 +218,9 @@ MALFORMED = {
     "merge-key bomb": (fleet_append("x-a: &m0 {k: 1}\n" + "".join(
         f"x-{i}: &m{i + 1} {{<<: [*m{i}], l{i}: [{', '.join(['*m' + str(i)] * 9)}]}}\n" for i in range(10))),
         "fleet.yml:"),
+    "recursive alias": (fleet_append("vars: {loop: &l [1, *l]}\n"), "fleet.yml:23:"),
+    "recursive alias in a vars file": (vars_file("a: &a {b: *a}\n"), "extra.yml:1:"),
+    "mutually recursive aliases": (fleet_append("vars: {a: &a [1, &b [*a, *b]]}\n"), "fleet.yml:23:"),
     "non-UTF-8 byte": (fleet_bytes(b"# caf\xe9 " + LAB_SECRET.encode() + b"\n"), "fleet.yml:23:"),
     "NUL byte": (fleet_bytes(b"x: \x00\n"), "fleet.yml:23:"),
     "deep flow nesting": (fleet_append("vars: {deep: " + "[" * 50000 + "]" * 50000 + "}\n"), "fleet.yml:23:"),
@@ -268,6 +271,8 @@ def test_yamlsrc_bounds_apply_to_every_caller() -> None:
         yamlsrc.load_data(BOMB)
     with pytest.raises(InputError, match="nested more than"):
         yamlsrc.load_data("[" * 100000)
+    with pytest.raises(InputError, match="contains itself"):
+        yamlsrc.load_data("&x [*x]")
     # a normal file with anchors, aliases and merges still loads, lines and all
     doc = yamlsrc.load("x.yml", "base: &b {a: 1, b: [1, 2]}\nuse:\n  <<: *b\n  c: *b\n")
     assert doc.data["use"] == {"a": 1, "b": [1, 2], "c": {"a": 1, "b": [1, 2]}}
