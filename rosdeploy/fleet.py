@@ -600,7 +600,7 @@ def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[st
     out: dict[str, Any] = {}
     if inventory:
         out["inventory"] = os.path.abspath(Path(os.path.expandvars(inventory)).expanduser())
-        if not Path(out["inventory"]).exists():
+        if not _exists(out["inventory"]):
             r.problems.append(Problem("--inventory", None, "", f"{inventory} does not exist: fix the -i path"))
     if version is not None:
         cli = Reader(Doc("--version", None))
@@ -611,13 +611,21 @@ def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[st
 
 def _check_paths(r: Reader, top: dict, inventory_overridden: bool) -> None:
     inv = top.get("inventory")
-    if not inventory_overridden and isinstance(inv, str) and not Path(inv).exists():
+    if not inventory_overridden and isinstance(inv, str) and not _exists(inv):
         r.error(("inventory",), f"the inventory {_as_written(r, 'inventory', inv)} does not exist: fix the path "
                                 "(relative to the fleet file) or pass -i")
     tpl = top.get("templates")
-    if isinstance(tpl, str) and not Path(tpl).is_dir():
+    if isinstance(tpl, str) and not _exists(tpl, folder=True):
         r.error(("templates",), f"{_as_written(r, 'templates', tpl)} is not a directory: point `templates:` at a "
                                 "folder of *.j2 overrides (relative to the fleet file) or remove the key")
+
+
+def _exists(path: str, folder: bool = False) -> bool:
+    """Path.exists/is_dir, where a name too long for the filesystem is "no" rather than an OSError."""
+    try:
+        return Path(path).is_dir() if folder else Path(path).exists()
+    except OSError:
+        return False
 
 
 def _as_written(r: Reader, key: str, expanded: str) -> str:

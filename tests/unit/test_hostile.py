@@ -244,6 +244,8 @@ MALFORMED = {
     "unicode digit size": (fleet_key(lambda d: d.update(ros={"shm_size": "٥١٢m"})), "ros.shm_size"),
     "unicode digit memory": (fleet_key(lambda d: d["services"]["driver"].update(resources={"memory": "²m"})),
                              "services.driver.resources.memory"),
+    "inventory path too long": (fleet_key(lambda d: d.update(inventory="x" * 5000)), "inventory"),
+    "templates path too long": (fleet_key(lambda d: d.update(templates="x" * 5000)), "templates"),
     "huge number": (fleet_append("preflight: {min_free_disk_mb: " + "9" * 5000 + "}\n"), "preflight"),
     "float overflow": (fleet_key(lambda d: d["services"]["driver"].update(resources={"cpus": float("inf")})),
                        "services.driver.resources.cpus"),
@@ -470,7 +472,7 @@ def test_a_template_that_is_not_utf8_is_a_clean_error(capsys: pytest.CaptureFixt
     refused_everywhere(capsys, lab, "logrotate.conf.j2:2", "not UTF-8")
 
 
-@pytest.mark.parametrize("path", ["/dev/zero", "/dev/null", "/", "/nonexistent/fleet.yml"])
+@pytest.mark.parametrize("path", ["/dev/zero", "/dev/null", "/", "/nonexistent/fleet.yml", "/tmp/" + "x" * 5000])
 def test_a_fleet_path_that_is_no_file(capsys: pytest.CaptureFixture, path: str) -> None:
     code = main(["validate", path])
     text = "".join(capsys.readouterr())
