@@ -1,6 +1,6 @@
 """The plain values that flow between rosdeploy's stages.
 
-    inventory.py -> Inventory/Host      fleet.py -> FleetSpec
+    inventory/ -> Inventory/Host         fleet.py -> FleetSpec
     render.py (Host, FleetSpec) -> RenderedRelease
     deploy.py / rollout.py -> HostResult -> FleetResult
 
