@@ -29,7 +29,12 @@ class Encrypted(str):
     """
 
 
+class Unsafe(str):
+    """An `!unsafe` scalar: Ansible never templates it, and neither does the inventory."""
+
+
 _Loader.add_constructor("!vault", lambda loader, node: Encrypted(loader.construct_scalar(node)))
+_Loader.add_constructor("!unsafe", lambda loader, node: Unsafe(loader.construct_scalar(node)))
 
 
 @dataclass(frozen=True)
@@ -59,8 +64,12 @@ def dotted(keypath: KeyPath) -> str:
     return out
 
 
-def load(path: str | Path, text: str | None = None) -> Doc:
-    """Parse one YAML file; a syntax error becomes an InputError naming file and line."""
+def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | None = None) -> Doc:
+    """Parse one YAML file; a syntax error becomes an InputError naming file and line.
+
+    A duplicate key is an error, unless `duplicates` is given: then, as in Ansible
+    (inventories), it is a warning appended there and the last value wins.
+    """
     path = str(path)
     if text is None:
         try:
@@ -75,23 +84,25 @@ def load(path: str | Path, text: str | None = None) -> Doc:
         what = getattr(exc, "problem", None) or str(exc)
         raise InputError([Problem(path, line, "", f"invalid YAML: {what}")]) from exc
     lines: dict[KeyPath, int] = {}
-    data = None if node is None else _build(node, (), lines, path)
+    data = None if node is None else _build(node, (), lines, path, duplicates)
     return Doc(path, data, lines)
 
 
-def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: str) -> Any:
+def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: str,
+           duplicates: list[Problem] | None = None) -> Any:
     lines.setdefault(keypath, node.start_mark.line + 1)
     if isinstance(node, yaml.MappingNode):
-        return _build_mapping(node, keypath, lines, path)
+        return _build_mapping(node, keypath, lines, path, duplicates)
     if isinstance(node, yaml.SequenceNode):
-        return [_build(item, keypath + (i,), lines, path) for i, item in enumerate(node.value)]
+        return [_build(item, keypath + (i,), lines, path, duplicates) for i, item in enumerate(node.value)]
     try:
         return _Loader(" ").construct_object(node, deep=True)
     except yaml.YAMLError as exc:
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath), f"invalid value: {exc}")]) from exc
 
 
-def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath, int], path: str) -> dict:
+def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath, int], path: str,
+                   duplicates: list[Problem] | None) -> dict:
     loader = _Loader(" ")
     loader.flatten_mapping(node)  # resolves `<<: *anchor` merges
     out: dict[Any, Any] = {}
@@ -99,8 +110,13 @@ def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath
         key = loader.construct_object(key_node, deep=True)
         child = keypath + (key,)
         if key in out:
-            raise InputError([Problem(path, key_node.start_mark.line + 1, dotted(child),
-                                      "duplicate key: it is defined twice in the same mapping; keep one")])
+            then = "keep one" if duplicates is None else "the last one is used, as in Ansible; keep one"
+            duplicate = Problem(path, key_node.start_mark.line + 1, dotted(child),
+                                f"duplicate key: it is defined twice in the same mapping; {then}",
+                                severity="error" if duplicates is None else "warning")
+            if duplicates is None:
+                raise InputError([duplicate])
+            duplicates.append(duplicate)
         lines[child] = key_node.start_mark.line + 1
-        out[key] = _build(value_node, child, lines, path)
+        out[key] = _build(value_node, child, lines, path, duplicates)
     return out

@@ -31,14 +31,13 @@ from rosdeploy.errors import InventoryError
 from rosdeploy.inventory.discovery import Reader, parse_sources
 from rosdeploy.inventory.draft import Draft
 from rosdeploy.inventory.graph import Graph
-from rosdeploy.inventory.known import ALIASES, CONNECTION_VARS, CONSUMED_VARS, ROSDEPLOY_VARS
+from rosdeploy.inventory.hostvars import CONSUMED_VARS, PREFIXED_VARS
 from rosdeploy.inventory.merge import assemble
 from rosdeploy.inventory.model import Group, Inventory
 from rosdeploy.inventory.vars_files import attach_vars_files
 from rosdeploy.vault import Vault
 
-__all__ = ["ALIASES", "CONNECTION_VARS", "CONSUMED_VARS", "ROSDEPLOY_VARS", "Group", "Inventory",
-           "load_inventory"]
+__all__ = ["CONSUMED_VARS", "PREFIXED_VARS", "Group", "Inventory", "load_inventory"]
 
 
 def load_inventory(path: str, vault: Vault | None = None) -> Inventory:

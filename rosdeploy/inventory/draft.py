@@ -17,8 +17,8 @@ class Origin:
     secret: bool = False    # came from a vault-encrypted file
     inline_secrets: frozenset[str] = frozenset()   # plaintexts of `!vault` values in the doc
 
-    def problem(self, keypath: KeyPath, message: str) -> Problem:
-        return self.doc.problem(self.base + keypath, message)
+    def problem(self, keypath: KeyPath, message: str, severity: str = "error") -> Problem:
+        return self.doc.problem(self.base + keypath, message, severity=severity)
 
     def child(self, key: Any) -> "Origin":
         return Origin(self.doc, self.base + (key,), self.secret, self.inline_secrets)
@@ -84,6 +84,7 @@ class Draft:
         self.groups: dict[str, GroupDraft] = {}
         self.hosts: dict[str, HostDraft] = {}
         self.problems: list[Problem] = []
+        self.warnings: list[Problem] = []
         self.group("all", root)
         self.group("ungrouped", root)
 

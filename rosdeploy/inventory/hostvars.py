@@ -3,37 +3,101 @@ from __future__ import annotations
 
 import os
 import re
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from rosdeploy import suggest
 from rosdeploy.errors import Problem
-from rosdeploy.inventory.draft import HostDraft, Layer, Origin, split_where, strings
-from rosdeploy.inventory.known import (ALIASES, ANSIBLE_VARS, CONSUMED_VARS, HEX4, MODE, NAME, NEAR_MISS_CUTOFF,
-                                       SERIAL, SHELL_UNSAFE, SUBSYSTEM, SYMLINK, TRUE, FALSE, UDEV_KEYS,
-                                       UDEV_REQUIRED, UNIX_GROUP, did_you_mean_hint)
+from rosdeploy.fleet import REMOTE_PATH_RE
+from rosdeploy.inventory.draft import Layer, Origin
+from rosdeploy.inventory.known import (ANSIBLE_VARS, FALSE, HEX4, MODE, NAME, NEAR_MISS_CUTOFF, SERIAL,
+                                       SHELL_UNSAFE, SUBSYSTEM, SYMLINK, TRUE, UDEV_KEYS, UDEV_REQUIRED,
+                                       UNIX_GROUP, did_you_mean_hint)
 from rosdeploy.model import UdevDevice, frozen_map
 from rosdeploy.yamlsrc import KeyPath
 
 
-def check_layer(layer: Layer) -> list[Problem]:
-    """Checks that depend on one layer only: done once, not once per host that inherits it."""
-    problems: list[Problem] = []
+@dataclass(frozen=True)
+class Var:
+    """One var rosdeploy reads: the Host field it fills, its converter, and whose name it is.
+
+    `shape` is set for short names other tools use too (`devices`, `gpu`): a value that
+    fails it belongs to someone else, so it is a warning and ignored, not a refusal.
+    Through the `rosdeploy_` name the value is always rosdeploy's, and checked strictly.
+    """
+
+    field: str | None            # None: the var stays in Host.vars (normalised), read by deploy/transport
+    convert: Callable[[Any], Any]
+    shape: Callable[[Any], bool] | None = None
+    what: str = ""               # the expected shape, for the warning
+
+
+def host_fields(name: str, read: Callable[[str], Any], origins: Mapping[str, Origin]
+                ) -> tuple[dict[str, Any], dict[str, Any], list[Problem], list[Problem]]:
+    """(Host fields, normalised vars, errors, warnings) of one host; `read` templates a var."""
+    fields: dict[str, Any] = {"address": name}
+    normalised: dict[str, Any] = {}
+    errors: list[Problem] = []
+    warnings: list[Problem] = []
+
+    def take(var: str, spec: Var, foreign_ok: bool) -> None:
+        try:
+            value = read(var)
+            if value is None:      # `ansible_user:` with nothing: unset, as in Ansible
+                return
+            if foreign_ok and spec.shape is not None and not spec.shape(value):
+                warnings.append(_foreign(name, var, value, spec, origins[var]))
+                return
+            converted = spec.convert(value)
+        except BadValue as bad:
+            errors.append(origins[var].problem((var, *bad.subpath), f"robot {name!r}: {bad.message}"))
+            return
+        if spec.field is None:
+            normalised[var] = converted
+        else:
+            fields[spec.field] = converted
+
+    for field, candidates in CONNECTION.items():
+        # Ansible's ssh plugin: of the names it lists, the last one set wins (ansible_ssh_host
+        # beats ansible_host), whichever inventory level each came from.
+        used = next((var for var in reversed(candidates) if var in origins), None)
+        if used is not None:
+            take(used, Var(field, CONVERTERS[field]), False)
+    for short, spec in OWN_VARS.items():
+        prefixed = PREFIX + short
+        if prefixed in origins:
+            take(prefixed, spec, False)
+        elif short in origins:
+            take(short, spec, True)
+    for var, spec in PREFIXED_ONLY.items():
+        if var in origins:
+            take(var, spec, False)
+    return fields, normalised, errors, warnings
+
+
+def _foreign(host: str, var: str, value: Any, spec: Var, origin: Origin) -> Problem:
+    shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+    return origin.problem((var,), f"robot {host!r}: {var} is {shown}, not rosdeploy's {spec.what}: another tool's "
+                                  f"variable, ignored by rosdeploy; give rosdeploy its own as {PREFIX}{var}",
+                          severity="warning")
+
+
+def check_layer(layer: Layer) -> tuple[list[Problem], list[Problem]]:
+    """(errors, warnings) that depend on one layer only: found once, not once per host."""
+    errors: list[Problem] = []
+    warnings: list[Problem] = []
     for key in layer.vars:
         if not isinstance(key, str):
-            problems.append(layer.origin.problem((key,), "variable names must be strings: quote it"))
+            errors.append(layer.origin.problem((key,), "variable names must be strings: quote it"))
+        elif key.startswith(PREFIX) and key not in PREFIXED_VARS:
+            hint = suggest.did_you_mean(key, PREFIXED_VARS) or f"known: {', '.join(sorted(PREFIXED_VARS))}"
+            errors.append(layer.origin.problem((key,), f"unknown rosdeploy variable {key!r}: {hint} "
+                                                       "(the rosdeploy_ prefix is rosdeploy's own)"))
         elif close := _near_miss(key):
-            problems.append(layer.origin.problem((key,), f"unknown variable {key!r}: did you mean {close!r}? "
-                                                         f"rename it (a free-form variable needs a name not "
-                                                         f"this close to one rosdeploy reads)"))
-    for keypath, text in strings(layer.vars, ()):
-        if "\n" in text or "\0" in text:
-            what = "a newline" if "\n" in text else "a NUL byte"
-            problems.append(layer.origin.problem(keypath, f"value contains {what}: host vars end up in .env "
-                                                          "files and commands, where it would start a new "
-                                                          "entry; put multi-line content in a file and give "
-                                                          "its path"))
-    return problems
+            warnings.append(layer.origin.problem((key,), f"{key!r} is not a variable rosdeploy reads: did you "
+                                                         f"mean {close!r}? (ignored if it is another tool's)",
+                                                 severity="warning"))
+    return errors, warnings
 
 
 def _near_miss(name: str) -> str | None:
@@ -51,47 +115,12 @@ class BadValue(Exception):
         self.subpath = subpath
 
 
-def host_fields(host: HostDraft, merged: Mapping[str, Any], origins: Mapping[str, Origin],
-                 base: Path) -> tuple[dict[str, Any], list[Problem]]:
-    converters: dict[str, tuple[str, Callable[[Any], Any]]] = {
-        "ansible_host": ("address", _to_address),
-        "ansible_port": ("port", _to_port),
-        "ansible_user": ("user", _to_user),
-        "ansible_ssh_private_key_file": ("key_file", lambda v: _to_key_file(v, base)),
-        "ros_domain_id": ("ros_domain_id", _to_domain_id),
-        "devices": ("devices", _to_devices),
-        "gpu": ("gpu", _to_bool),
-        "udev": ("udev", _to_udev),
-        "ros_network": ("network", _to_network),
-    }
-    fields: dict[str, Any] = {"address": host.name}
-    problems: list[Problem] = []
-    for var, (name, convert) in converters.items():
-        used = var if var in merged else next((a for a, p in ALIASES.items() if p == var and a in merged), None)
-        if used is None:
-            continue
-        try:
-            fields[name] = convert(merged[used])
-        except BadValue as bad:
-            problems.append(origins[used].problem((used, *bad.subpath), bad.message))
-    if "ros_domain_id" not in merged:
-        problems.append(_missing_domain_id(host))
-    return fields, problems
-
-
-def _missing_domain_id(host: HostDraft) -> Problem:
-    path, line = split_where(host.source)
-    return Problem(path, line, f"{host.name}.ros_domain_id",
-                   f"robot {host.name!r} has no ros_domain_id: add `ros_domain_id: N` (0-232) to "
-                   f"host_vars/{host.name}.yml, to its entry here, or to its group's vars (robots on "
-                   "one ros_network need distinct IDs)")
-
-
 def to_int(value: Any, what: str) -> int:
-    # Ansible accepts "2222" where it wants a number; so do we, but nothing looser.
+    # Ansible accepts "2222" where it wants a number; so do we, but nothing looser: ASCII
+    # digits only ("²".isdigit() is True, and int("²") raises).
     if isinstance(value, int) and not isinstance(value, bool):
         return value
-    if isinstance(value, str) and value.strip().isdigit():
+    if isinstance(value, str) and _ASCII_INT.fullmatch(value.strip()):
         return int(value)
     raise BadValue(f"must be {what}, got {value!r}")
 
@@ -144,13 +173,29 @@ def _to_user(value: Any) -> str:
     return user
 
 
-def _to_key_file(value: Any, base: Path) -> str:
+def _to_local_path(value: Any) -> str:
+    """A file on this machine: `~` expanded, a relative path taken from the working directory,
+    as Ansible (ssh) does for ansible_ssh_private_key_file; `{{ inventory_dir }}/...` for a
+    path beside the inventory."""
     if not isinstance(value, str) or not value:
-        raise BadValue(f"must be a path to a private key file, got {value!r}")
-    path = os.path.expanduser(value)
-    if not os.path.isabs(path):  # relative to the inventory, not to wherever rosdeploy runs
-        path = os.path.normpath(os.path.join(os.path.abspath(base), path))
-    return _safe_text(path, "a key file path")
+        raise BadValue(f"must be a path to a file, got {value!r}")
+    return _safe_text(os.path.abspath(os.path.expanduser(value)), "a file path")
+
+
+def _to_remote_root(value: Any) -> str:
+    """A directory on the robot, the way the fleet file's deploy_root is checked."""
+    # The pattern admits letters, digits and `_.-` only: no shell metacharacter gets through.
+    if not isinstance(value, str) or not REMOTE_PATH_RE.fullmatch(value) or ".." in value.split("/"):
+        raise BadValue(f"must be an absolute path or one under ~ on the robot, without '..' or shell "
+                       f"metacharacters (e.g. /opt/rosdeploy or ~/rosdeploy), got {value!r}")
+    return value
+
+
+def _to_compose(value: Any) -> str:
+    if value in COMPOSE_CHOICES:
+        return str(value)
+    raise BadValue(f"must be one of {', '.join(COMPOSE_CHOICES)}, got {value!r}"
+                   f"{did_you_mean_hint(value, COMPOSE_CHOICES)}")
 
 
 def _to_network(value: Any) -> str:
@@ -177,8 +222,9 @@ def _device_path(path: Any, subpath: KeyPath) -> str:
         text = _safe_text(path, "an absolute device path", extra_unsafe=":,")
     except BadValue as bad:
         raise BadValue(bad.message, subpath) from None
-    if not text.startswith("/") or "/../" in text + "/":
-        raise BadValue(f"must be an absolute device path on the robot (e.g. /dev/robot/lidar), got {text!r}",
+    parts = text.split("/")
+    if not text.startswith("/dev/") or ".." in parts or "." in parts or len(text) <= len("/dev/"):
+        raise BadValue(f"must be a device path under /dev on the robot (e.g. /dev/robot/lidar), got {text!r}",
                        subpath)
     return text
 
@@ -247,3 +293,43 @@ def _udev_mode(value: Any, subpath: KeyPath) -> str:
     mode = _udev_text(value, MODE, "an octal mode as a string, e.g. \"0660\"", subpath)
     return mode.zfill(4)
 
+
+def _is_bool(value: Any) -> bool:
+    return isinstance(value, bool) or (isinstance(value, str) and value.strip().lower() in TRUE + FALSE)
+
+
+def _is_udev(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(e, Mapping) and "symlink" in e for e in value)
+
+
+PREFIX = "rosdeploy_"
+COMPOSE_CHOICES = ("auto", "v1", "v2")
+_ASCII_INT = re.compile(r"[0-9]+")
+
+CONVERTERS: dict[str, Callable[[Any], Any]] = {
+    "address": _to_address, "port": _to_port, "user": _to_user, "key_file": _to_local_path}
+# Host field -> the names Ansible's ssh plugin reads for it, lowest precedence first.
+CONNECTION: dict[str, tuple[str, ...]] = {
+    "address": ("ansible_host", "ansible_ssh_host"),
+    "port": ("ansible_port", "ansible_ssh_port"),
+    "user": ("ansible_user", "ansible_ssh_user"),
+    "key_file": ("ansible_private_key_file", "ansible_ssh_private_key_file"),
+}
+# rosdeploy's own vars: `rosdeploy_NAME` always; the short NAME too, unless another tool's value sits there.
+OWN_VARS: dict[str, Var] = {
+    "ros_domain_id": Var("ros_domain_id", _to_domain_id),   # no other tool's name: always checked
+    "ros_network": Var("network", _to_network, lambda v: isinstance(v, str), "network name (a string)"),
+    "devices": Var("devices", _to_devices, lambda v: isinstance(v, Mapping),
+                   "devices map (logical name: /dev/... path)"),
+    "gpu": Var("gpu", _to_bool, _is_bool, "gpu flag (true or false)"),
+    "udev": Var("udev", _to_udev, _is_udev, "udev list (entries with symlink, subsystem, vendor, product)"),
+}
+# Read from Host.vars by transport, deploy and render; checked (and paths made absolute) here.
+PREFIXED_ONLY: dict[str, Var] = {
+    "rosdeploy_known_hosts": Var(None, _to_local_path),
+    "rosdeploy_deploy_root": Var(None, _to_remote_root),
+    "rosdeploy_home": Var(None, _to_remote_root),
+    "rosdeploy_compose": Var(None, _to_compose),
+}
+PREFIXED_VARS = frozenset({*(PREFIX + name for name in OWN_VARS), *PREFIXED_ONLY})
+CONSUMED_VARS = (*OWN_VARS, *PREFIXED_VARS, *(var for names in CONNECTION.values() for var in names))

@@ -8,14 +8,7 @@ from typing import Iterable
 from rosdeploy import suggest
 
 
-ROSDEPLOY_VARS = ("ros_domain_id", "ros_network", "devices", "gpu", "udev",
-                  "rosdeploy_known_hosts")  # the last one is read by transport.py, from Host.vars
-CONNECTION_VARS = ("ansible_host", "ansible_port", "ansible_user", "ansible_ssh_private_key_file")
-# Older spellings Ansible still honours; the primary name wins when both are set.
-ALIASES = {"ansible_ssh_host": "ansible_host", "ansible_ssh_port": "ansible_port",
-           "ansible_ssh_user": "ansible_user", "ansible_private_key_file": "ansible_ssh_private_key_file"}
-CONSUMED_VARS = (*ROSDEPLOY_VARS, *CONNECTION_VARS, *ALIASES)
-# Real Ansible variables that merely look like the ones above: never "did you mean".
+# Real Ansible variables that merely look like the ones rosdeploy reads: never "did you mean".
 ANSIBLE_VARS = frozenset({
     "ansible_become", "ansible_become_user", "ansible_become_pass", "ansible_become_password",
     "ansible_become_method", "ansible_become_exe", "ansible_become_flags", "ansible_connection",

@@ -4,7 +4,8 @@ from __future__ import annotations
 from typing import Any
 
 from rosdeploy.inventory.draft import Draft, Origin, make_layer
-from rosdeploy.inventory.known import CONSUMED_VARS, GROUP_KEYS, did_you_mean_hint
+from rosdeploy.inventory.hostvars import CONSUMED_VARS
+from rosdeploy.inventory.known import GROUP_KEYS, did_you_mean_hint
 from rosdeploy.inventory.ranges import add_hosts, valid_name
 
 
