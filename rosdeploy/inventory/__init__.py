@@ -47,8 +47,8 @@ def load_inventory(path: str, vault: Vault | None = None) -> Inventory:
     environment (ROSDEPLOY_VAULT_PASSWORD[_FILE]) and never with a prompt.
     """
     root = Path(path)
-    reader = Reader(vault or Vault())
     draft = Draft(str(root))
+    reader = Reader(vault or Vault(), draft.warnings)
     base = parse_sources(root, reader, draft)
     attach_vars_files(base, reader, draft)
     graph = Graph.build(draft)

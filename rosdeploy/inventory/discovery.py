@@ -8,7 +8,8 @@ from rosdeploy import yamlsrc
 from rosdeploy.errors import InputError, Problem, VaultError
 from rosdeploy.inventory.draft import Draft, Origin
 from rosdeploy.inventory.ini_parser import check_undeclared, parse_ini
-from rosdeploy.inventory.known import SCRIPT_EXTS, SKIPPED_EXTS, YAML_EXTS
+from rosdeploy.inventory.known import MAYBE_NOT_INVENTORY, SCRIPT_EXTS, SKIPPED_EXTS, YAML_EXTS
+from rosdeploy.inventory.script import is_script, parse_script
 from rosdeploy.inventory.yaml_parser import parse_yaml
 from rosdeploy.vault import Vault
 from rosdeploy.yamlsrc import Doc, Encrypted
@@ -17,8 +18,9 @@ from rosdeploy.yamlsrc import Doc, Encrypted
 class Reader:
     """Reads files, decrypting vault ones in memory, and turns YAML into Docs."""
 
-    def __init__(self, vault: Vault) -> None:
+    def __init__(self, vault: Vault, warnings: list[Problem]) -> None:
         self.vault = vault
+        self.warnings = warnings   # duplicate keys: Ansible warns and keeps the last, so do we
 
     def text(self, path: Path, problems: list[Problem]) -> tuple[str, bool] | None:
         try:
@@ -41,7 +43,7 @@ class Reader:
 
     def load(self, path: Path, text: str, secret: bool, problems: list[Problem]) -> Origin | None:
         try:
-            doc = yamlsrc.load(path, text)
+            doc = yamlsrc.load(path, text, duplicates=self.warnings)
         except InputError as exc:
             problems.extend(exc.problems)
             return None
@@ -80,15 +82,32 @@ def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
                                                            "file's `inventory:` path"))
         return root
     for path in files:
+        if is_script(path):
+            parse_script(path, draft)
+            continue
         read = reader.text(path, draft.problems)
         if read is None:
             continue
-        if path.suffix not in YAML_EXTS:
+        if path.suffix in YAML_EXTS:
+            if (origin := reader.load(path, read[0], read[1], draft.problems)) is not None:
+                parse_yaml(origin, draft)
+        elif path.name.endswith(MAYBE_NOT_INVENTORY) and root.is_dir():
+            _parse_ini_or_skip(path, read, draft)
+        else:
             parse_ini(path, read[0], read[1], draft)
-        elif (origin := reader.load(path, read[0], read[1], draft.problems)) is not None:
-            parse_yaml(origin, draft)
     check_undeclared(draft)
     return base
+
+
+def _parse_ini_or_skip(path: Path, read: tuple[str, bool], draft: Draft) -> None:
+    """`hosts.example` & co: Ansible tries them as INI and only warns when that fails."""
+    before = len(draft.problems)
+    parse_ini(path, read[0], read[1], draft)
+    if len(draft.problems) > before:
+        first = draft.problems[before]
+        del draft.problems[before:]
+        draft.warnings.append(Problem(str(path), first.line, "", f"not an inventory ({first.message}): skipped, "
+                                      "as Ansible skips a file it cannot parse", severity="warning"))
 
 
 def _inventory_files(root: Path, problems: list[Problem]) -> list[Path]:
@@ -100,10 +119,10 @@ def _inventory_files(root: Path, problems: list[Problem]) -> list[Path]:
             found.extend(_inventory_files(entry, problems))
         elif entry.name.endswith(SKIPPED_EXTS):
             continue
-        elif entry.suffix in SCRIPT_EXTS:
-            problems.append(Problem(str(entry), None, "", "dynamic inventory scripts and plugins are not "
-                                    "supported (rosdeploy reads YAML and INI inventories): export the hosts "
-                                    "to a YAML file, or move this file out of the inventory directory"))
+        elif entry.suffix in SCRIPT_EXTS and not is_script(entry):
+            problems.append(Problem(str(entry), None, "", "looks like a dynamic inventory script but is not "
+                                    "executable: `chmod +x` it to have it run (as Ansible does), or move it "
+                                    "out of the inventory directory"))
         else:
             found.append(entry)  # like Ansible: YAML by extension, anything else is INI
     return found

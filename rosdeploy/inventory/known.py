@@ -37,9 +37,11 @@ UDEV_REQUIRED = ("symlink", "subsystem", "vendor", "product")
 GROUP_KEYS = ("hosts", "vars", "children")
 YAML_EXTS = (".yml", ".yaml", ".json")
 VARS_EXTS = ("", *YAML_EXTS)
-SKIPPED_EXTS = (".md", ".txt", ".rst", ".orig", ".bak", ".swp", ".pyc", ".pyo", ".retry", ".cfg", ".rpm", "~",
-                 ".example", ".sample", ".j2")
-# Dynamic inventories (scripts, plugin configs) that Ansible would run: refused, not misread as INI.
+# Ansible's INVENTORY_IGNORE_EXTS: never read.
+SKIPPED_EXTS = (".md", ".txt", ".rst", ".orig", ".bak", ".swp", ".pyc", ".pyo", ".retry", ".cfg", ".rpm", "~")
+# Read as INI, as Ansible does, but skipped with a warning when that fails (Ansible's "Unable to parse").
+MAYBE_NOT_INVENTORY = (".example", ".sample", ".j2")
+# Dynamic inventories that are not executable: refused, not misread as INI (executable ones are run).
 SCRIPT_EXTS = (".py", ".sh", ".toml", ".js", ".rb", ".pl", ".ps1", ".exe")
 TRUE = ("true", "yes", "on", "1", "y", "t")
 FALSE = ("false", "no", "off", "0", "n", "f")

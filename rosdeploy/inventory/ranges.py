@@ -64,9 +64,14 @@ def _range_items(start: str, end: str, stride: int) -> list[str]:
 def valid_name(name: str, origin: Origin, draft: Draft, what: str) -> bool:
     if NAME.fullmatch(name):
         return True
+    if what == "group" and name and not any(c.isspace() or not c.isprintable() for c in name):
+        # Ansible keeps such a group name, with a warning (TRANSFORM_INVALID_GROUP_CHARS=never).
+        draft.warnings.append(origin.problem((), f"group name {name!r} holds characters other than letters, "
+                                                 "digits, '_', '-' and '.': kept, as Ansible does, but patterns "
+                                                 "and shells may read it differently; rename it",
+                                             severity="warning"))
+        return True
     draft.problems.append(origin.problem((), f"invalid {what} name {name!r}: use letters, digits, "
                                              "'_', '-' and '.' (other characters clash with patterns "
                                              "and shells)"))
     return False
-
-

@@ -1,6 +1,7 @@
 """`group_vars/` and `host_vars/` beside the inventory: files and directories of them."""
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -13,7 +14,7 @@ from rosdeploy.inventory.known import SKIPPED_EXTS, VARS_EXTS, YAML_EXTS
 
 def attach_vars_files(base: Path, reader: Reader, draft: Draft) -> None:
     for kind, entities in (("group_vars", draft.groups), ("host_vars", draft.hosts)):
-        for name, files in _vars_files(base / kind, draft.problems).items():
+        for name, files in _vars_files(base / kind, draft).items():
             target = entities.get(name)
             if target is None:
                 if kind == "group_vars" and files:
@@ -25,8 +26,8 @@ def attach_vars_files(base: Path, reader: Reader, draft: Draft) -> None:
                     target.files.append(layer)
 
 
-def _vars_files(folder: Path, problems: list[Problem]) -> dict[str, list[Path]]:
-    """Entity name → its vars files in load order."""
+def _vars_files(folder: Path, draft: Draft) -> dict[str, list[Path]]:
+    """Entity name → its vars files in load order, chosen as Ansible's find_vars_files does."""
     if not folder.is_dir():
         return {}
     candidates: dict[str, list[Path]] = {}
@@ -39,24 +40,32 @@ def _vars_files(folder: Path, problems: list[Problem]) -> dict[str, list[Path]]:
             candidates.setdefault(entry.name, []).append(entry)
     out: dict[str, list[Path]] = {}
     for name, found in candidates.items():
-        if len(found) > 1:
-            listed = " and ".join(str(p) + ("/" if p.is_dir() else "") for p in found)
-            problems.append(Problem(str(found[0]), None, "", f"{listed} both hold vars for {name!r}; Ansible "
-                                    "would read only one of them: merge them into one"))
-        out[name] = _dir_files(found[0]) if found[0].is_dir() else [found[0]]
+        # Ansible takes the first of NAME (file or directory), NAME.yml, NAME.yaml, NAME.json.
+        found.sort(key=lambda p: VARS_EXTS.index(p.suffix) if p.name != name else -1)
+        for ignored in found[1:]:
+            draft.warnings.append(Problem(str(ignored), None, "", f"ignored: {found[0]}{'/' if found[0].is_dir() else ''} "
+                                          f"already holds the vars of {name!r}, and Ansible reads only the first "
+                                          "of NAME, NAME.yml, NAME.yaml, NAME.json; merge them", severity="warning"))
+        out[name] = _dir_files(found[0], draft, set()) if found[0].is_dir() else [found[0]]
     return out
 
 
-def _dir_files(folder: Path) -> list[Path]:
+def _dir_files(folder: Path, draft: Draft, seen: set[str]) -> list[Path]:
+    real = os.path.realpath(folder)
+    if real in seen:   # a symlink back up the tree: Ansible would follow it ~40 levels deep
+        draft.warnings.append(Problem(str(folder), None, "", f"symlink loop (back to {real}): its files are "
+                                      "read once; remove the link", severity="warning"))
+        return []
+    seen = seen | {real}
     found: list[Path] = []
     for entry in sorted(folder.iterdir()):
         if entry.name.startswith(".") or entry.name.endswith("~"):
             continue
         if entry.is_dir() and not entry.suffix:
-            found.extend(_dir_files(entry))
+            found.extend(_dir_files(entry, draft, seen))
         elif entry.is_file() and entry.suffix in VARS_EXTS:
             found.append(entry)
-    return found
+    return list({os.path.realpath(path): path for path in reversed(found)}.values())[::-1]   # each file once
 
 
 def _read_vars_file(path: Path, reader: Reader, draft: Draft) -> Layer | None:

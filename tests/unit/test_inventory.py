@@ -346,10 +346,20 @@ def test_host_vars_for_dotted_names(tmp_path):
     assert (hosts["10.0.0.5"].ros_domain_id, hosts["amr.lan"].ros_domain_id) == (5, 6)
 
 
-def test_vars_file_and_directory_for_one_group_conflict(tmp_path):
-    message = problems_of(tmp_path, {"hosts.yml": ONE_HOST, "group_vars/all.yml": "a: 1\n",
-                                     "group_vars/all/x.yml": "b: 2\n"})
-    assert "all/ and" in message and "all.yml both hold vars" in message and "merge them" in message
+def test_vars_directory_beside_a_vars_file_wins_as_in_ansible(tmp_path):
+    write(tmp_path, {"hosts.yml": ONE_HOST, "group_vars/all.yml": "a: 1\n", "group_vars/all/x.yml": "b: 2\n"})
+    inventory = load_inventory(str(tmp_path))
+    assert dict(inventory.hosts["r1"].vars) == {"ros_domain_id": 1, "b": 2}   # Ansible reads all/ only
+    assert any("all.yml" in w.file and "ignored" in w.message for w in inventory.warnings)
+
+
+def test_symlink_loop_in_group_vars_reads_each_file_once(tmp_path):
+    write(tmp_path, {"hosts.yml": ONE_HOST, "group_vars/all/x.yml": "b: 2\n"})
+    (tmp_path / "group_vars" / "all" / "loop").symlink_to("..")
+    (tmp_path / "group_vars" / "all" / "self").symlink_to(".")
+    inventory = load_inventory(str(tmp_path))
+    assert inventory.hosts["r1"].vars["b"] == 2
+    assert any("symlink loop" in w.message for w in inventory.warnings)
 
 
 def test_missing_inventory_and_empty_inventory(tmp_path):
@@ -362,7 +372,7 @@ def test_missing_inventory_and_empty_inventory(tmp_path):
 
 def test_scripts_are_refused_and_other_names_are_ini(tmp_path):
     message = problems_of(tmp_path, {"hosts.yml": ONE_HOST, "ec2.py": "#!/usr/bin/env python\n"})
-    assert "ec2.py" in message and "not supported" in message
+    assert "ec2.py" in message and "not executable" in message
     (tmp_path / "ec2.py").unlink()
     write(tmp_path, {"staging.hosts": "[extra]\nx1 ros_domain_id=9\n", "hosts.yml.example": "junk: [\n"})
     assert list(load_inventory(str(tmp_path)).hosts) == ["r1", "x1"]   # any other name is INI, like Ansible
