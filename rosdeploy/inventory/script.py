@@ -22,7 +22,15 @@ TIMEOUT = 60.0   # seconds per run: a cloud API behind the script may be slow, a
 
 
 def is_script(path: Path) -> bool:
-    return path.is_file() and os.access(path, os.X_OK)
+    """Executable and starting with `#!`. (Ansible also tries executable files without one and falls
+    back to YAML/INI when that fails: files marked executable by a checkout are common.)"""
+    if not (path.is_file() and os.access(path, os.X_OK)):
+        return False
+    try:
+        with path.open("rb") as handle:
+            return handle.read(2) == b"#!"
+    except OSError:
+        return False
 
 
 def parse_script(path: Path, draft: Draft) -> None:
