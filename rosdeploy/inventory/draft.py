@@ -1,7 +1,7 @@
 """Parse state: vars layers with their origin, and the mutable drafts of groups and hosts."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Iterator, Mapping
 
 from rosdeploy.errors import Problem
@@ -18,7 +18,10 @@ class Origin:
     inline_secrets: frozenset[str] = frozenset()   # plaintexts of `!vault` values in the doc
 
     def problem(self, keypath: KeyPath, message: str, severity: str = "error") -> Problem:
-        return self.doc.problem(self.base + keypath, message, severity=severity)
+        found = self.doc.problem(self.base + keypath, message, severity=severity)
+        # A name holding a newline must not split the message (or fake a line of its own).
+        printable = "".join(c if c.isprintable() else repr(c)[1:-1] for c in found.key)
+        return found if printable == found.key else replace(found, key=printable)
 
     def child(self, key: Any) -> "Origin":
         return Origin(self.doc, self.base + (key,), self.secret, self.inline_secrets)

@@ -47,9 +47,11 @@ def _range_items(start: str, end: str, stride: int) -> list[str]:
     if stride < 1:
         raise ValueError("the step must be 1 or more")
     if start.isdigit() and end.isdigit():
-        if start.startswith("0") and len(start) != len(end):
+        # Ansible pads only when the start is zero-padded (`[01:10]`); a lone 0 is just zero (`[0:11]`).
+        padded = start.startswith("0") and len(start) > 1
+        if padded and len(start) != len(end):
             raise ValueError("zero-padded bounds must have equal width, e.g. [01:10]")
-        width = len(start) if start.startswith("0") else 0
+        width = len(start) if padded else 0
         numbers = range(int(start), int(end) + 1, stride)
         items = [str(n).zfill(width) for n in numbers]
     elif len(start) == 1 and len(end) == 1 and start.isalpha() and end.isalpha():
