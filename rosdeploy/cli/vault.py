@@ -26,7 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
             ("edit", _edit, False, "edit a vault file with $EDITOR (created if missing)")):
         action = actions.add_parser(name, help=text, description=text)
         action.add_argument("files", nargs="+" if many else 1, metavar="FILE")
-        _password_arg(action)
+        add_vault_options(action)
+        if name in ("encrypt", "edit"):
+            _format_args(action)
         action.set_defaults(func=handler)
     string = actions.add_parser("encrypt-string", help="print `NAME: !vault |` to paste into a vars file",
                                 description="Encrypt one value (from VALUE, else standard input) as an "
@@ -34,21 +36,50 @@ def register(sub: argparse._SubParsersAction) -> None:
     string.add_argument("value", nargs="?", metavar="VALUE",
                         help="the secret; omit it to read standard input (keeps it out of shell history)")
     string.add_argument("--name", required=True, help="the variable name, e.g. fleet_api_token")
-    _password_arg(string)
+    add_vault_options(string)
+    _format_args(string)
     string.set_defaults(func=_encrypt_string)
 
 
-def _password_arg(parser: argparse.ArgumentParser) -> None:
+def add_vault_options(parser: argparse.ArgumentParser) -> None:
+    """--vault-password-file and --vault-id (repeatable): for `vault` and for every fleet command."""
     parser.add_argument("--vault-password-file", metavar="FILE",
                         help=f"file holding the vault password (or set {vaultlib.ENV_PASSWORD_FILE} "
                              f"or {vaultlib.ENV_PASSWORD}); an executable file is run")
+    parser.add_argument("--vault-id", dest="vault_ids", action="append", default=[], metavar="LABEL@FILE",
+                        help="a vault id as in Ansible: LABEL@FILE, LABEL@prompt or FILE; repeat it for "
+                             "files encrypted with different passwords (the first one encrypts)")
+
+
+def vault_from_args(args: argparse.Namespace, prompt: vaultlib.Prompt | None = None) -> vaultlib.Vault:
+    """The Vault that add_vault_options' arguments describe (a --vault-password-file is one more id)."""
+    ids = [vaultlib.VaultId.parse(text) for text in args.vault_ids]
+    if ids and args.vault_password_file:
+        ids.append(vaultlib.VaultId("default", args.vault_password_file))
+    return vaultlib.Vault(password_file=args.vault_password_file, prompt=prompt, ids=ids)
+
+
+def _format_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--format", choices=("ansible", "rosdeploy"), dest="vault_format",
+                        help="ansible: Ansible's 1.1/1.2 format, which ansible-vault reads (the default inside "
+                             "an inventory that already holds Ansible vault data); rosdeploy: AES-256-GCM with "
+                             "scrypt (the default otherwise)")
+    parser.add_argument("--encrypt-vault-id", metavar="LABEL",
+                        help="which --vault-id encrypts (default: the first); its label goes in the header")
+
+
+def _ansible_format(args: argparse.Namespace, near: str) -> bool:
+    if args.vault_format:
+        return args.vault_format == "ansible"
+    return vaultlib.holds_ansible_vaults(near)
 
 
 def _encrypt(args: argparse.Namespace, out: Output) -> int:
     vault = _vault(args, args.files[0], new_password=True)
     for path in args.files:
-        vaultlib.encrypt_file(path, vault)
-        out.line(f"encrypted {path}")
+        ansible = _ansible_format(args, path)
+        vaultlib.encrypt_file(path, vault, ansible_format=ansible, label=args.encrypt_vault_id)
+        out.line(f"encrypted {path}" + (" (Ansible's format: ansible-vault reads it)" if ansible else ""))
     return 0
 
 
@@ -62,7 +93,9 @@ def _encrypt_string(args: argparse.Namespace, out: Output) -> int:
     if not value:
         raise VaultError([Problem("--name", None, "", "nothing to encrypt: give VALUE or pipe it in")])
     vault = _vault(args, args.name, new_password=True)
-    out.line(vaultlib.encrypt_string(value, vault, args.name).rstrip("\n"))
+    ansible = _ansible_format(args, os.getcwd())
+    out.line(vaultlib.encrypt_string(value, vault, args.name, ansible_format=ansible,
+                                     label=args.encrypt_vault_id).rstrip("\n"))
     return 0
 
 
@@ -83,7 +116,8 @@ def _view(args: argparse.Namespace, out: Output) -> int:
 def _edit(args: argparse.Namespace, out: Output) -> int:
     path = args.files[0]
     vault = _vault(args, path, new_password=not os.path.exists(path))
-    changed = vaultlib.edit_file(path, vault, lambda temp: _run_editor(temp, path))
+    changed = vaultlib.edit_file(path, vault, lambda temp: _run_editor(temp, path),
+                                 ansible_format=_ansible_format(args, path))
     out.line(f"saved {path}" if changed else f"no changes to {path}")
     return 0
 
@@ -93,7 +127,7 @@ def _vault(args: argparse.Namespace, about: str, new_password: bool = False) -> 
     prompt = None
     if sys.stdin.isatty():
         prompt = _confirmed_prompt(about) if new_password else getpass.getpass
-    return vaultlib.Vault(password_file=args.vault_password_file, prompt=prompt)
+    return vault_from_args(args, prompt)
 
 
 def _confirmed_prompt(path: str) -> vaultlib.Prompt:

@@ -1,7 +1,7 @@
 """What real Ansible makes of inventories: run in ONE subprocess for many questions (ansible-core API).
 
 stdin: a JSON list of jobs {"inventory": PATH, "patterns": [...], "template": {host: [var, ...]},
-"connection": [host, ...]}; stdout: one JSON result per job, in order:
+"connection": [host, ...], "vault": [[label, password], ...]}; stdout: one JSON result per job, in order:
 
     {"patterns": {pattern: [hosts] | {"error": text}},
      "templated": {host: {var: value | {"error": text}}},
@@ -21,6 +21,7 @@ from typing import Any
 warnings.simplefilter("ignore")
 
 from ansible.parsing.dataloader import DataLoader  # noqa: E402
+from ansible.parsing.vault import VaultSecret, VaultSecretsContext  # noqa: E402
 from ansible.inventory.manager import InventoryManager  # noqa: E402
 from ansible.playbook.play_context import PlayContext  # noqa: E402
 from ansible.plugins.loader import connection_loader  # noqa: E402
@@ -39,6 +40,7 @@ def plain(value: Any) -> Any:
 
 def run(job: dict[str, Any]) -> dict[str, Any]:
     loader = DataLoader()
+    loader.set_vault_secrets(_secrets(job))
     inventory = InventoryManager(loader=loader, sources=[job["inventory"]])
     manager = VariableManager(loader=loader, inventory=inventory)
     out: dict[str, Any] = {"patterns": {}, "templated": {}, "connection": {}}
@@ -69,8 +71,14 @@ def run(job: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _secrets(job: dict[str, Any]) -> list[tuple[str, VaultSecret]]:
+    return [(label, VaultSecret(password.encode())) for label, password in job.get("vault", [])]
+
+
 def main() -> None:
     jobs = json.load(sys.stdin)
+    # Inline `!vault` values are decrypted through a process-wide context, set once (as the CLIs do).
+    VaultSecretsContext.initialize(VaultSecretsContext([s for job in jobs for s in _secrets(job)]))
     json.dump([run(job) for job in jobs], sys.stdout)
 
 
