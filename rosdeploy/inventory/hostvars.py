@@ -63,6 +63,9 @@ def host_fields(name: str, read: Callable[[str], Any], origins: Mapping[str, Ori
         used = next((var for var in reversed(candidates) if var in origins), None)
         if used is not None:
             take(used, Var(field, CONVERTERS[field]), False)
+            if field == "key_file":
+                where = origins[used].problem((used,), "")
+                fields["key_file_var"] = f"{used} ({where.file}:{where.line})" if where.line else used
     for short, spec in OWN_VARS.items():
         prefixed = PREFIX + short
         if prefixed in origins:

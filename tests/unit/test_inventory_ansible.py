@@ -183,3 +183,16 @@ def test_cli_refuses_hostile_inventory_values(tmp_path: Path, capsys: pytest.Cap
     assert f"{robot.name}:" in err and f" {key}:" in err
     assert "Traceback" not in err
     assert not out_dir.exists() or not any(out_dir.iterdir())
+
+
+def test_a_missing_key_file_names_the_file_and_the_variable(tmp_path: Path) -> None:
+    from rosdeploy.errors import ConnectError
+    from rosdeploy.transport import SSHOptions, SSHTransport
+    write(tmp_path, {"hosts.yml": ONE, "group_vars/all.yml": "x: 1\nansible_ssh_private_key_file: "
+                                                            "'{{ inventory_dir }}/keys/none'\n"})
+    host = load_inventory(str(tmp_path)).hosts["r1"]
+    with pytest.raises(ConnectError) as caught:
+        SSHTransport(host, SSHOptions(known_hosts=str(tmp_path / "known_hosts"))).open()
+    message = str(caught.value)
+    assert str(tmp_path / "keys" / "none") in message and "does not exist" in message
+    assert "ansible_ssh_private_key_file (" in message and "all.yml:2)" in message
