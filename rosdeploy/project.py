@@ -29,9 +29,10 @@ class Project:
     spec: FleetSpec
     inventory: Inventory
 
-    def targets(self, limit: str | None = None) -> tuple[Host, ...]:
-        """The robots `--limit` selects (all of them without one), in inventory order."""
-        return tuple(self.inventory.select(limit))
+    def targets(self, limit: str | None = None, warnings: list[Problem] | None = None) -> tuple[Host, ...]:
+        """The robots `--limit` selects (all of them without one), in inventory order; a term that
+        matches nothing is a warning appended to `warnings` (as in Ansible)."""
+        return tuple(self.inventory.select(limit, warnings))
 
     @property
     def secret_values(self) -> frozenset[str]:

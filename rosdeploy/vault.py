@@ -425,8 +425,9 @@ def edit_file(path: str, vault: Vault, run_editor: Callable[[str], None], ansibl
     """Decrypt to a private temp file, let `run_editor` change it, re-encrypt; True if it changed.
 
     A missing file is created (in Ansible's format with `ansible_format`). An Ansible
-    vault stays an Ansible vault, with its label, so Ansible can still read it. The plaintext only ever sits in a 0600 file that is
-    overwritten before it is removed, whatever the editor does.
+    vault stays an Ansible vault, with its label, so Ansible can still read it. The
+    plaintext only ever sits in a 0600 file that is overwritten before it is removed,
+    whatever the editor does.
     """
     original = _read_file(path) if os.path.exists(path) else None
     if original is not None and not is_encrypted(original):

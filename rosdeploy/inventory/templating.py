@@ -166,7 +166,8 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
         if whole and "{{" not in whole["expr"] and "}}" not in whole["expr"]:
             return _expression(whole["expr"], scope)
         template = _ENV.from_string(value)
-        return _ENV.concat(template.root_render_func(template.new_context(scope, shared=True)))  # type: ignore[attr-defined]
+        context = template.new_context(scope, shared=True)
+        return _ENV.concat(template.root_render_func(context))  # type: ignore[attr-defined]
     except TemplateFailed:
         raise
     except jinja2.TemplateError as exc:

@@ -42,10 +42,11 @@ def _vars_files(folder: Path, draft: Draft) -> dict[str, list[Path]]:
     for name, found in candidates.items():
         # Ansible takes the first of NAME (file or directory), NAME.yml, NAME.yaml, NAME.json.
         found.sort(key=lambda p: VARS_EXTS.index(p.suffix) if p.name != name else -1)
+        chosen = f"{found[0]}{'/' if found[0].is_dir() else ''}"
         for ignored in found[1:]:
-            draft.warnings.append(Problem(str(ignored), None, "", f"ignored: {found[0]}{'/' if found[0].is_dir() else ''} "
-                                          f"already holds the vars of {name!r}, and Ansible reads only the first "
-                                          "of NAME, NAME.yml, NAME.yaml, NAME.json; merge them", severity="warning"))
+            draft.warnings.append(Problem(str(ignored), None, "", f"ignored: {chosen} already holds the vars of "
+                                          f"{name!r}, and Ansible reads only the first of NAME, NAME.yml, "
+                                          "NAME.yaml, NAME.json; merge them", severity="warning"))
         out[name] = _dir_files(found[0], draft, set()) if found[0].is_dir() else [found[0]]
     return out
 
