@@ -21,12 +21,8 @@ def assemble(draft: Draft, graph: Graph, root: Path, base: Path) -> Inventory:
         errors, warnings = check_layer(layer)
         draft.problems.extend(errors)
         draft.warnings.extend(warnings)
-    members: dict[str, list[str]] = {name: [] for name in draft.groups}
     direct = _direct_groups(draft)
     host_groups = {name: _host_groups(direct[name], graph) for name in draft.hosts}
-    for name, groups in host_groups.items():
-        for group in groups:
-            members[group].append(name)
     ordered = {name: ansible_order(name, draft) for name in draft.groups}
     hostvars: dict[str, HostVars] = {}
     magic = {"groups": {name: list(hosts) for name, hosts in ordered.items()}, "hostvars": hostvars}

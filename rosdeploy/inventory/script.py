@@ -78,8 +78,9 @@ def _group(origin: Origin, name: str, entry: Any, draft: Draft) -> None:
 
 
 def _run(path: Path, args: list[str], draft: Draft) -> dict[str, Any] | None:
-    def refuse(message: str) -> None:
+    def refuse(message: str) -> dict[str, Any] | None:
         draft.problems.append(Problem(str(path), None, "", f"dynamic inventory script: {message}"))
+        return None
 
     try:
         done = subprocess.run([str(path.absolute()), *args], stdin=subprocess.DEVNULL, capture_output=True,

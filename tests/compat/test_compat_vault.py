@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import argparse
 import io
+import json
 from pathlib import Path
 
 import pytest
 
-from compat import REPO, ansible_list, ask, cli, ours, require_ansible
+from compat import REPO, ask, cli, require_ansible
 from rosdeploy.cli import vault as vault_cli
 from rosdeploy.inventory import load_inventory
 from rosdeploy.output import Output
@@ -81,7 +82,6 @@ def test_the_example_inventory_reads_the_same_in_ansible(tmp: Path) -> None:
     password = example / ".vault-password-example"
     done = cli(["ansible-inventory", "-i", str(example), "--list", "--vault-password-file", str(password)], tmp)
     assert done.returncode == 0, done.stderr
-    import json
     theirs = json.loads(done.stdout)["_meta"]["hostvars"]
     loaded = load_inventory(str(example), Vault(password_file=str(password)))
     assert {name: json.loads(json.dumps(dict(host.vars.raw))) for name, host in loaded.hosts.items()} == theirs
