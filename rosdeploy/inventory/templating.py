@@ -22,7 +22,7 @@ from typing import Any, Iterator, Mapping
 import jinja2
 from jinja2.sandbox import SandboxedEnvironment
 
-from rosdeploy.errors import InventoryError
+from rosdeploy.errors import InventoryError, Problem
 from rosdeploy.inventory.draft import Origin
 from rosdeploy.yamlsrc import Unsafe
 
@@ -37,6 +37,20 @@ class TemplateFailed(Exception):
         super().__init__(message)
         self.key = key
         self.message = message
+
+
+class UnresolvedVar(InventoryError, jinja2.UndefinedError):
+    """Using a var whose template failed: an input error, and, inside a fleet template, a
+    template error the renderer reports like any other."""
+
+    def __init__(self, problem: Problem) -> None:
+        InventoryError.__init__(self, [problem])
+
+
+class Unresolved(jinja2.StrictUndefined):
+    """A var whose template fails (`{{ ansible_facts.. }}` and `{{ playbook_dir }}` exist only in a
+    play): Ansible fails only where it is used, so this is harmless until something reads it, then
+    a clean error naming file and key. The vars rosdeploy itself reads are checked at load."""
 
 
 def _bool(value: Any) -> bool:
@@ -94,7 +108,8 @@ class HostVars(Mapping[str, Any]):
             return self.value(key)
         except TemplateFailed as failed:
             origin = self._origins.get(failed.key) or self._origins[key]
-            raise InventoryError([origin.problem((failed.key,), f"robot {self._name!r}: {failed.message}")]) from None
+            problem = origin.problem((failed.key,), f"robot {self._name!r}: {failed.message}")
+            return Unresolved(hint=problem, name=key, exc=UnresolvedVar)  # type: ignore[arg-type]
 
     def value(self, key: str) -> Any:
         """The templated value; TemplateFailed (naming the var) if it cannot be templated."""

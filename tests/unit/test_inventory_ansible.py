@@ -75,10 +75,28 @@ def test_a_hostile_template_runs_nothing_and_leaks_nothing(tmp_path: Path, monke
 def test_a_template_error_in_a_var_read_later_names_file_and_key(tmp_path: Path) -> None:
     write(tmp_path, {"hosts.yml": ONE, "group_vars/all.yml": "motd: '{{ nope }}'\nloop: '{{ loop }}'\n"})
     host = load_inventory(str(tmp_path)).hosts["r1"]   # lazily: unused vars do not stop a load
+    copied = {**host.vars}                              # nor does copying them (the renderer does)
     with pytest.raises(InventoryError, match=r"all.yml:1: motd: robot 'r1': cannot template .*nope"):
-        host.vars["motd"]
+        str(copied["motd"])
     with pytest.raises(InventoryError, match="recursive loop"):
-        host.vars["loop"]
+        str(host.vars["loop"])
+
+
+def test_vars_that_need_a_playbook_fail_only_where_a_fleet_template_uses_them(
+        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    lab = tmp_path / "lab"
+    shutil.copytree(DATA, lab)
+    extra = "iface: '{{ ansible_default_ipv4.interface }}'\nrepo: '{{ playbook_dir }}/..'\n"
+    (lab / "inventory" / "group_vars" / "all" / "other_roles.yml").write_text(extra)
+    argv = ["render", str(lab / "fleet.yml"), "--vault-password-file", str(lab / "inventory" / ".vault-password")]
+    assert main([*argv, "--out", str(tmp_path / "ok")]) == 0, capsys.readouterr().err   # unused: as in Ansible
+    fleet = (lab / "fleet.yml").read_text()
+    (lab / "fleet.yml").write_text(fleet.replace("    restart: always\n",
+                                                 "    restart: always\n    environment: {IFACE: '{{ iface }}'}\n"))
+    code = main([*argv, "--out", str(tmp_path / "used")])
+    err = capsys.readouterr().err
+    assert code == 2 and "other_roles.yml:1: iface:" in err and "ansible_default_ipv4" in err, err
+    assert "Traceback" not in err
 
 
 def test_multi_line_values_are_fine_where_they_reach_no_env_file(tmp_path: Path) -> None:
