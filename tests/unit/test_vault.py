@@ -388,3 +388,17 @@ def test_example_inventory_vault_is_in_ansibles_format():
     assert data.startswith(b"$ANSIBLE_VAULT;1.1;AES256\n")
     password = (example / ".vault-password-example").read_bytes().strip()
     assert b"fleet_api_token: demo-4f9c2a7e1b8d4e6fa0c3" in decrypt(data, password, "vault.yml")
+
+
+def test_fleet_commands_can_reuse_the_vault_options(tmp_path):
+    """cli.vault.add_vault_options/vault_from_args: what every fleet command adds and reads."""
+    pw = password_files(tmp_path, dev="dev-pass", default="pw")
+    parser = argparse.ArgumentParser()
+    vault_cli.add_vault_options(parser)
+    args = parser.parse_args(["--vault-id", f"dev@{pw['dev']}", "--vault-password-file", str(pw["default"])])
+    vault = vault_cli.vault_from_args(args)
+    assert vault.labels == ("dev", "default")
+    assert vault.decrypt(encrypt(SECRET, b"pw", FAST), "a.yml") == SECRET
+    assert vault.decrypt(ansible_encrypt(SECRET, b"dev-pass", "dev"), "b.yml") == SECRET
+    plain = vault_cli.vault_from_args(parser.parse_args(["--vault-password-file", str(pw["default"])]))
+    assert plain.decrypt(encrypt(SECRET, b"pw", FAST), "c.yml") == SECRET
