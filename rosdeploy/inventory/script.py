@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -83,19 +84,25 @@ def _run(path: Path, args: list[str], draft: Draft) -> dict[str, Any] | None:
         return None
 
     try:
-        done = subprocess.run([str(path.absolute()), *args], stdin=subprocess.DEVNULL, capture_output=True,
-                              timeout=TIMEOUT, check=False)
-    except subprocess.TimeoutExpired:
-        return refuse(f"`{path.name} {' '.join(args)}` did not finish within {TIMEOUT:.0f} s: fix the script "
-                      "or export its output to a YAML file")
+        # Its own session, so a timeout stops whatever it started too, not only the script.
+        proc = subprocess.Popen([str(path.absolute()), *args], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, start_new_session=True)
     except OSError as exc:
         return refuse(f"cannot run it ({exc.strerror}): check its #! line, or remove its execute bit if it is "
                       "not a script")
-    if done.returncode != 0:
-        tail = done.stderr.decode("utf-8", "replace").strip()[-300:]
-        return refuse(f"`{path.name} {' '.join(args)}` exited {done.returncode}: {tail}")
+    with proc:
+        try:
+            stdout, stderr = proc.communicate(timeout=TIMEOUT)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+            return refuse(f"`{path.name} {' '.join(args)}` did not finish within {TIMEOUT:g} s: fix the script "
+                          "or export its output to a YAML file")
+    if proc.returncode != 0:
+        tail = stderr.decode("utf-8", "replace").strip()[-300:]
+        return refuse(f"`{path.name} {' '.join(args)}` exited {proc.returncode}: {tail}")
     try:
-        data = json.loads(done.stdout.decode("utf-8"))
+        data = json.loads(stdout.decode("utf-8"))
     except (UnicodeDecodeError, ValueError) as exc:
         return refuse(f"`{path.name} {' '.join(args)}` did not print JSON ({exc}): a dynamic inventory prints "
                       "a JSON object of groups")

@@ -214,3 +214,13 @@ def test_a_missing_key_file_names_the_file_and_the_variable(tmp_path: Path) -> N
     message = str(caught.value)
     assert str(tmp_path / "keys" / "none") in message and "does not exist" in message
     assert "ansible_ssh_private_key_file (" in message and "all.yml:2)" in message
+
+
+def test_a_hung_dynamic_inventory_is_stopped(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from rosdeploy.inventory import script as script_module
+    monkeypatch.setattr(script_module, "TIMEOUT", 0.5)
+    script = tmp_path / "slow.sh"
+    script.write_text("#!/bin/sh\nsleep 30\n")
+    script.chmod(0o755)
+    with pytest.raises(InventoryError, match=r"slow.sh --list` did not finish within"):
+        load_inventory(str(script))
