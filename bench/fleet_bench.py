@@ -161,9 +161,9 @@ def run_fanout(args: argparse.Namespace, raw: dict[str, Any], work: Path, playbo
         log(f"fan-out release {release} deployed to t001 and copied to every target")
         for n in args.sizes:
             for _ in range(args.runs):
-                measure(times["status_first"], n, lambda: fan.rosdeploy_status(setup, n, held=False))
-                measure(times["status"], n, lambda: fan.rosdeploy_status(setup, n, held=True))
-                measure(times["rosdeploy_noop"], n, lambda: fan.rosdeploy_noop(setup, n))
+                measure(times["status_first"], n, lambda n=n: fan.rosdeploy_status(setup, n, held=False))
+                measure(times["status"], n, lambda n=n: fan.rosdeploy_status(setup, n, held=True))
+                measure(times["rosdeploy_noop"], n, lambda n=n: fan.rosdeploy_noop(setup, n))
             log(f"  N={n}: status {_secs(times['status_first'][n])} connecting, {_secs(times['status'][n])} "
                 f"held, no-op {_secs(times['rosdeploy_noop'][n])}")
         runner = ans.Ansible(playbook, fan.ansible_inventory(setup), work)
@@ -172,7 +172,7 @@ def run_fanout(args: argparse.Namespace, raw: dict[str, Any], work: Path, playbo
         fan.ansible_deploy_first_target(setup, runner, extra)
         for n in args.sizes:
             for _ in range(args.ansible_fanout_runs):
-                measure(times["ansible_noop"], n, lambda: fan.ansible_noop(setup, runner, extra, n))
+                measure(times["ansible_noop"], n, lambda n=n: fan.ansible_noop(setup, runner, extra, n))
             log(f"  N={n}: Ansible no-op {_secs(times['ansible_noop'][n])}")
     finally:
         fan.teardown(farm)

@@ -148,7 +148,7 @@ def _r(value: float | None, digits: int = 3) -> float | None:
 def table_rows(results: Mapping[str, Any]) -> list[tuple[str, str, str, str]]:
     rows = []
     robots = results["config"]["robots"]
-    for scenario, entry in results.get("fleet", {}).items():
+    for entry in results.get("fleet", {}).values():
         rows.append((f"{entry['title']} ({robots} robots)", _s(entry["rosdeploy_median"]),
                      _s(entry["ansible_median"]), _x(entry["speedup"])))
     fan = results.get("fanout", {})
@@ -186,7 +186,8 @@ def _x(value: float | None) -> str:
 
 def text_table(rows: Sequence[tuple[str, ...]], header: Sequence[str]) -> str:
     widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
-    lines = ["  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(r, widths)))
+    lines = ["  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w)
+                       for i, (c, w) in enumerate(zip(r, widths, strict=False)))
              for r in [header, *rows]]
     return "\n".join([lines[0], "-" * len(lines[0]), *lines[1:]])
 

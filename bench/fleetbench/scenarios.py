@@ -33,7 +33,8 @@ KEEPER = "fleet-bench/layers:keep"
 # in every round, instead of 120 MB in round 1 and nothing after.
 UNTAG_SCRIPT = r'''
 reg=$1
-docker image inspect "$2" >/dev/null 2>&1 || { docker pull -q "$reg/demo/driver:1.0.0" >/dev/null && docker tag "$reg/demo/driver:1.0.0" "$2"; }
+docker image inspect "$2" >/dev/null 2>&1 ||
+    { docker pull -q "$reg/demo/driver:1.0.0" >/dev/null && docker tag "$reg/demo/driver:1.0.0" "$2"; }
 tags=$(docker images --format '{{.Repository}}:{{.Tag}}' | grep "^$reg/demo/" || true)
 [ -z "$tags" ] || docker rmi $tags >/dev/null
 '''

@@ -100,7 +100,8 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
     root = Path(args.out)
     written = [write_release(root / name, release) for name, release in releases.items()]
     if out.as_json:
-        out.document({"out": str(root), "robots": [_release_json(r, d) for r, d in zip(releases.values(), written)]})
+        robots = [_release_json(r, d) for r, d in zip(releases.values(), written, strict=True)]
+        out.document({"out": str(root), "robots": robots})
         return EXIT_OK
     out.table(["ROBOT", "RELEASE", "DIGEST", "FILES"],
               [(r.host, r.release_id, r.digest[:16], len(r.files)) for r in releases.values()])
