@@ -33,7 +33,7 @@ def build_parser() -> Parser:
     for module in (offline, remote, sim, vault, completion):
         module.register(sub)
     version = add_command(sub, "version", "print rosdeploy's version", "Print rosdeploy's version.",
-                          (EXIT_OK,), "rosdeploy version")
+                          (EXIT_OK, EXIT_INPUT), "rosdeploy version")
     version.set_defaults(func=cmd_version)
     return parser
 

@@ -86,7 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = add_command(sub, "connections", "SSH connections held for status/plan/history (ssh.persist)",
                     "List the SSH connections the keeper holds for status, plan and history, or close them.",
-                    (EXIT_OK, EXIT_INTERNAL), "rosdeploy connections --close")
+                    (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL), "rosdeploy connections --close")
     p.add_argument("--close", action="store_true", help="close them all now and stop the keeper")
     p.set_defaults(func=cmd_connections)
 
