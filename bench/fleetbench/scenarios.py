@@ -31,12 +31,13 @@ TITLES = {
 KEEPER = "fleet-bench/layers:keep"
 # Keep the demo images' layers on a robot under a local tag, then drop every demo
 # tag: each round's pulls then fetch manifests (and any layer a tag adds), the same
-# in every round, instead of 120 MB in round 1 and nothing after.
+# in every round, instead of 120 MB in round 1 and nothing after. Untagged (`<none>`)
+# images other runs left are not names `docker rmi` takes: skipped.
 UNTAG_SCRIPT = r'''
 reg=$1
 docker image inspect "$2" >/dev/null 2>&1 ||
     { docker pull -q "$reg/demo/driver:1.0.0" >/dev/null && docker tag "$reg/demo/driver:1.0.0" "$2"; }
-tags=$(docker images --format '{{.Repository}}:{{.Tag}}' | grep "^$reg/demo/" || true)
+tags=$(docker images --format '{{.Repository}}:{{.Tag}}' | grep "^$reg/demo/" | grep -v ':<none>$' || true)
 [ -z "$tags" ] || docker rmi $tags >/dev/null
 '''
 
