@@ -442,3 +442,28 @@ def test_readme_offline_commands_work_as_typed(tmp_path: Path, command: str, exp
     words = [w.replace("/tmp/", f"{tmp_path}/") for w in shlex.split(command)[1:]]
     done = rosdeploy(*words, env=exports)
     assert done.returncode == 0, (command, done.stderr)
+
+
+def test_a_simulator_failure_exits_3_with_its_error(capsys: pytest.CaptureFixture,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    from rosdeploy import sim
+    from rosdeploy.errors import SimError
+
+    def cannot(**kwargs: object) -> None:
+        raise SimError("docker info failed: is dockerd running?")
+
+    monkeypatch.setattr(sim, "up", cannot)
+    assert main(["sim", "up", "--json"]) == EXIT_PARTIAL == 3
+    doc = one_document(capsys.readouterr().out)
+    assert doc["error"] == {"kind": "error", "message": "docker info failed: is dockerd running?", "problems": []}
+    assert "3  the simulated fleet failed" in build_parser()._subparsers._group_actions[0].choices["sim"].epilog
+
+
+def test_every_rosdeploy_command_in_the_readme_parses() -> None:
+    text = (REPO / "README.md").read_text()
+    commands = [line.split("#")[0].strip() for block in re.findall(r"```(?:sh|bash|console)?\n(.*?)```", text, re.S)
+                for line in block.splitlines() if line.strip().startswith("rosdeploy ")]
+    assert len(commands) >= 10
+    for command in commands:
+        words = shlex.split(command.split(">")[0].split("|")[0])
+        build_parser().parse_args(words[1:])      # a UsageError fails the test with the command's problem
