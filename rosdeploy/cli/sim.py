@@ -5,7 +5,7 @@ import argparse
 import time
 from typing import TYPE_CHECKING
 
-from rosdeploy.cli.common import add_command, positive_int
+from rosdeploy.cli.common import add_command, duration, positive_int
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_PARTIAL
 from rosdeploy.output import Output
 
@@ -46,6 +46,63 @@ def register(sub: argparse._SubParsersAction) -> None:
                          {**SIM_MEANINGS, EXIT_OK: "every robot runs and the registry answers",
                           EXIT_PARTIAL: "no fleet, a robot not running, or the registry down"})
     status.set_defaults(func=cmd_status)
+    _register_faults(actions)
+
+
+def _register_faults(actions: argparse._SubParsersAction) -> None:
+    """Field faults to rehearse on: a cut link, a robot without its registry, a busy robot, a reboot."""
+    cut = add_command(actions, "cut", "drop a robot's SSH link (the robot keeps running) until `sim heal`",
+                      "Every packet to the robot's sshd is dropped, on open connections too, as when a robot "
+                      "roams out of Wi-Fi range.", SIM_CODES, "rosdeploy sim cut robot2 --for 2s", SIM_MEANINGS)
+    cut.add_argument("robot", metavar="ROBOT")
+    cut.add_argument("--for", dest="seconds", type=duration, default=0.0, metavar="DURATION",
+                     help="heal by itself after this long (e.g. 2s: a Wi-Fi blip)")
+    cut.set_defaults(func=cmd_fault, fault="cut")
+    isolate = add_command(actions, "isolate", "cut a robot off from the registry; its SSH link still works",
+                          "Drop the robot's traffic to the registry, so pulls fail while SSH works.",
+                          SIM_CODES, "rosdeploy sim isolate robot2 --from registry", SIM_MEANINGS)
+    isolate.add_argument("robot", metavar="ROBOT")
+    isolate.add_argument("--from", dest="target", choices=["registry"], default="registry")
+    isolate.set_defaults(func=cmd_fault, fault="isolate")
+    heal = add_command(actions, "heal", "undo `sim cut` and `sim isolate` on a robot",
+                       "Restore a robot's SSH link and its way to the registry.", SIM_CODES,
+                       "rosdeploy sim heal robot2", SIM_MEANINGS)
+    heal.add_argument("robot", metavar="ROBOT")
+    heal.set_defaults(func=cmd_fault, fault="heal")
+    busy = add_command(actions, "busy", "set the demo driver's /robot_mode to BUSY (on) or IDLE (off)",
+                       "Set the demo driver's /robot_mode topic to BUSY (on) or IDLE (off).", SIM_CODES,
+                       "rosdeploy sim busy robot2 on", SIM_MEANINGS)
+    busy.add_argument("robot", metavar="ROBOT")
+    busy.add_argument("state", choices=["on", "off"])
+    busy.set_defaults(func=cmd_fault, fault="busy")
+    reboot = add_command(actions, "reboot", "restart a robot (its engine, sshd and containers) and wait for it",
+                         "Restart a robot (its engine, sshd and containers) and wait until it answers again.",
+                         SIM_CODES, "rosdeploy sim reboot robot2", SIM_MEANINGS)
+    reboot.add_argument("robot", metavar="ROBOT")
+    reboot.set_defaults(func=cmd_fault, fault="reboot")
+
+
+def cmd_fault(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import sim
+    sim.load()       # a clear "run `rosdeploy sim up`" when there is no fleet
+    name = args.robot
+    if args.fault == "cut":
+        sim.cut(name, args.seconds)
+        out.line(f"{name}: SSH link cut" + (f" for {args.seconds:g} s" if args.seconds else "; `rosdeploy sim heal "
+                                                                                                f"{name}` restores it"))
+    elif args.fault == "isolate":
+        sim.isolate(name, args.target)
+        out.line(f"{name}: cut off from the {args.target}; SSH still works")
+    elif args.fault == "heal":
+        sim.heal(name)
+        out.line(f"{name}: link and registry restored")
+    elif args.fault == "busy":
+        sim.busy(name, args.state == "on")
+        out.line(f"{name}: /robot_mode {'BUSY' if args.state == 'on' else 'IDLE'}")
+    else:
+        sim.reboot(name)
+        out.line(f"{name}: restarted and reachable")
+    return 0
 
 
 def _progress(out: Output):
