@@ -31,12 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
-from cryptography.exceptions import InvalidSignature, InvalidTag
-from cryptography.hazmat.primitives import hashes, hmac, padding
-from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
-from cryptography.hazmat.primitives.ciphers.aead import AESGCM
-from cryptography.hazmat.primitives.kdf.pbkdf2 import PBKDF2HMAC
-from cryptography.hazmat.primitives.kdf.scrypt import Scrypt
+# cryptography is imported where a file is sealed or opened (~60 ms at import): `rosdeploy --help`,
+# completion and a `validate` of a fleet without vault files never load it.
 
 from rosdeploy.errors import Problem, VaultError
 
@@ -73,6 +69,8 @@ def is_encrypted(data: bytes) -> bool:
 
 def encrypt(plaintext: bytes, password: bytes, params: ScryptParams = ScryptParams()) -> bytes:
     header = f"{MAGIC.decode()}1;AES256-GCM;scrypt;{params.header_field()}".encode()
+    from cryptography.hazmat.primitives.ciphers.aead import AESGCM
+
     salt, nonce = os.urandom(_SALT), os.urandom(_NONCE)
     sealed = AESGCM(_scrypt(password, salt, params)).encrypt(nonce, plaintext, header)
     return header + b"\n" + _wrap(base64.b64encode(salt + nonce + sealed), _LINE)
@@ -80,6 +78,9 @@ def encrypt(plaintext: bytes, password: bytes, params: ScryptParams = ScryptPara
 
 def decrypt(data: bytes, password: bytes, source: str, *, password_source: str = "") -> bytes:
     """Plaintext of a rosdeploy or Ansible vault file; VaultError naming `source` otherwise."""
+    from cryptography.exceptions import InvalidTag
+    from cryptography.hazmat.primitives.ciphers.aead import AESGCM
+
     header, body = _split_header(data, source)
     if data.startswith(ANSIBLE_MAGIC):
         return _ansible_decrypt(header, body, password, source, password_source)
@@ -95,6 +96,8 @@ def decrypt(data: bytes, password: bytes, source: str, *, password_source: str =
 
 
 def _scrypt(password: bytes, salt: bytes, params: ScryptParams) -> bytes:
+    from cryptography.hazmat.primitives.kdf.scrypt import Scrypt
+
     return Scrypt(salt=salt, length=32, n=params.n, r=params.r, p=params.p).derive(password)
 
 
@@ -164,6 +167,9 @@ def _error(source: str, message: str) -> VaultError:
 
 def ansible_encrypt(plaintext: bytes, password: bytes, label: str | None = None) -> bytes:
     """Ansible's own format, so `vault edit` of an Ansible vault leaves it readable by Ansible."""
+    from cryptography.hazmat.primitives import hashes, hmac, padding
+    from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
+
     salt = os.urandom(32)
     cipher_key, mac_key, iv = _ansible_keys(password, salt)
     padder = padding.PKCS7(128).padder()
@@ -184,6 +190,10 @@ def ansible_label(data: bytes) -> str | None:
 
 
 def _ansible_decrypt(header: str, body: str, password: bytes, source: str, password_source: str) -> bytes:
+    from cryptography.exceptions import InvalidSignature
+    from cryptography.hazmat.primitives import hashes, hmac, padding
+    from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
+
     fields = header.split(";")
     if len(fields) < 3 or fields[1] not in ("1.1", "1.2") or fields[2] != "AES256":
         raise _error(source, f"unsupported Ansible vault header {header!r}: only 1.1/1.2 AES256 is "
@@ -209,6 +219,9 @@ def _ansible_decrypt(header: str, body: str, password: bytes, source: str, passw
 
 
 def _ansible_keys(password: bytes, salt: bytes) -> tuple[bytes, bytes, bytes]:
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.hazmat.primitives.kdf.pbkdf2 import PBKDF2HMAC
+
     derived = PBKDF2HMAC(hashes.SHA256(), length=80, salt=salt, iterations=10000).derive(password)
     return derived[:32], derived[32:64], derived[64:]
 

@@ -10,21 +10,28 @@ import subprocess
 import sys
 
 from rosdeploy import vault as vaultlib
-from rosdeploy.errors import Problem, VaultError
+from rosdeploy.cli.common import epilog
+from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem, VaultError
 from rosdeploy.output import Output
+
+
+CODES = (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL)   # a wrong password or a damaged file is an input error
+EXAMPLE_FILE = "inventory/group_vars/all/vault.yml"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("vault", help="encrypt, decrypt, view or edit vault files (secrets at rest)",
                             description="Whole files encrypted with AES-256-GCM; a group_vars/host_vars "
-                                        "file may be one. Ansible's own vault files are read too.")
+                                        "file may be one. Ansible's own vault files are read too.",
+                            epilog=epilog(CODES, f"rosdeploy vault view {EXAMPLE_FILE}"))
     actions = parser.add_subparsers(dest="vault_action", metavar="ACTION", required=True)
     for name, handler, many, text in (
             ("encrypt", _encrypt, True, "encrypt files in place (mode 0600)"),
             ("decrypt", _decrypt, True, "decrypt files in place (mode 0600)"),
             ("view", _view, False, "print the plaintext of a vault file"),
             ("edit", _edit, False, "edit a vault file with $EDITOR (created if missing)")):
-        action = actions.add_parser(name, help=text, description=text)
+        action = actions.add_parser(name, help=text, description=text,
+                                    epilog=epilog(CODES, f"rosdeploy vault {name} {EXAMPLE_FILE}"))
         action.add_argument("files", nargs="+" if many else 1, metavar="FILE")
         add_vault_options(action)
         if name in ("encrypt", "edit"):
@@ -32,10 +39,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         action.set_defaults(func=handler)
     string = actions.add_parser("encrypt-string", help="print `NAME: !vault |` to paste into a vars file",
                                 description="Encrypt one value (from VALUE, else standard input) as an "
-                                            "inline `!vault` value, like ansible-vault encrypt_string.")
+                                            "inline `!vault` value, like ansible-vault encrypt_string.",
+                                epilog=epilog(CODES, "rosdeploy vault encrypt-string --name fleet_api_token"))
     string.add_argument("value", nargs="?", metavar="VALUE",
                         help="the secret; omit it to read standard input (keeps it out of shell history)")
-    string.add_argument("--name", required=True, help="the variable name, e.g. fleet_api_token")
+    string.add_argument("--name", required=True, metavar="NAME", help="the variable name, e.g. fleet_api_token")
     add_vault_options(string)
     _format_args(string)
     string.set_defaults(func=_encrypt_string)

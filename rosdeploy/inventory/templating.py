@@ -109,7 +109,7 @@ class HostVars(Mapping[str, Any]):
         except TemplateFailed as failed:
             origin = self._origins.get(failed.key) or self._origins[key]
             problem = origin.problem((failed.key,), f"robot {self._name!r}: {failed.message}")
-            return Unresolved(hint=problem, name=key, exc=UnresolvedVar)  # type: ignore[arg-type]
+            return Unresolved(hint=problem, name=key, exc=UnresolvedVar)
 
     def value(self, key: str) -> Any:
         """The templated value; TemplateFailed (naming the var) if it cannot be templated."""
@@ -150,7 +150,7 @@ class HostVars(Mapping[str, Any]):
         return name in self._magic or name in self._raw
 
 
-class _Scope(dict):  # type: ignore[type-arg]
+class _Scope(dict):
     """Jinja2 reads names through this: each var is templated only if a template uses it."""
 
     def __init__(self, host: HostVars) -> None:
@@ -182,7 +182,7 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
             return _expression(whole["expr"], scope)
         template = _ENV.from_string(value)
         context = template.new_context(scope, shared=True)
-        return _ENV.concat(template.root_render_func(context))  # type: ignore[attr-defined]
+        return _ENV.concat(template.root_render_func(context))
     except TemplateFailed:
         raise
     except jinja2.TemplateError as exc:
@@ -197,7 +197,7 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
 def _expression(expr: str, scope: _Scope) -> Any:
     """`{{ expr }}` alone: the expression's own value, not its text (so a number stays a number)."""
     compiled = _ENV.compile_expression(expr, undefined_to_none=False)
-    template = compiled._template  # type: ignore[attr-defined]
+    template = compiled._template
     context = template.new_context(scope, shared=True)
     for _ in template.root_render_func(context):
         pass

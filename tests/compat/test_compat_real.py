@@ -25,7 +25,7 @@ def patterns_for(groups: dict[str, set[str]], hosts: list[str]) -> list[str]:
     out = ["all", "*", "ungrouped", "!ungrouped"]
     for group in picked:
         out += [group, f"{group}[0]", f"{group}[-1]", f"{group}[1:2]", f"{group}[1:]", f"{group}:nomatch"]
-    for first, second in zip(picked, picked[1:]):
+    for first, second in zip(picked, picked[1:], strict=False):
         out += [f"{first}:{second}", f"{first}:&{second}", f"{first}:!{second}", f"{first},{second}",
                 f"{first}:{second},{hosts[0]}", f"&{first}:{second}"]
     head = re.sub(r"[^A-Za-z]", "", hosts[0])[:2] or hosts[0][:1]
@@ -45,7 +45,8 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                                                                      lists[path.name]["groups"]["all"]))}
             for path in INVENTORIES]
     replies = ask(jobs, tmp)
-    return {"tmp": tmp, "lists": lists, "patterns": {p.name: r["patterns"] for p, r in zip(INVENTORIES, replies)}}
+    patterns = {p.name: r["patterns"] for p, r in zip(INVENTORIES, replies, strict=True)}
+    return {"tmp": tmp, "lists": lists, "patterns": patterns}
 
 
 @pytest.mark.parametrize("inventory", INVENTORIES, ids=IDS)

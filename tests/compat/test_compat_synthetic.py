@@ -43,7 +43,8 @@ FOREIGN = {
         udev: enabled
         """,
 }
-RANGES = {"hosts": "[amr]\namr[0:11]\n[cam]\ncam[0:10:5]\n[letters]\nnode-[a:c]\n[padded]\nr[01:03]\n[mixed]\nx[8:10]\n"}
+RANGES = {"hosts": "[amr]\namr[0:11]\n[cam]\ncam[0:10:5]\n[letters]\nnode-[a:c]\n[padded]\nr[01:03]\n"
+                   "[mixed]\nx[8:10]\n"}
 LEGACY = {
     "hosts.yml": """\
         all:

@@ -334,7 +334,8 @@ def test_every_problem_is_reported_at_once(tmp_path):
 
 def test_group_level_problem_is_reported_once_not_per_host(tmp_path):
     hosts = "".join(f"    r{i}:\n      ros_domain_id: {i}\n" for i in range(20))
-    message = problems_of(tmp_path, {"hosts.yml": "all:\n  hosts:\n" + hosts, "group_vars/all.yml": "rosdeploy_gpu: 2\n"})
+    message = problems_of(tmp_path, {"hosts.yml": "all:\n  hosts:\n" + hosts,
+                                     "group_vars/all.yml": "rosdeploy_gpu: 2\n"})
     assert len(message.splitlines()) == 20   # one per robot, each naming it: the value is rosdeploy's
     assert "robot 'r7'" in message
 
