@@ -3,10 +3,13 @@ rendered into each command's help, and the arguments several commands take."""
 from __future__ import annotations
 
 import argparse
-from typing import Any, NoReturn, Sequence
+from typing import TYPE_CHECKING, Any, NoReturn, Sequence
 
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
                               EXIT_PARTIAL, InputError)
+
+if TYPE_CHECKING:
+    from rosdeploy.output import Output
 
 COLOR_MODES = ("auto", "always", "never")
 
@@ -104,5 +107,15 @@ def add_fleet_args(parser: argparse.ArgumentParser, *, limit: bool = True, versi
     if version:
         parser.add_argument("--version", dest="release_version", metavar="VERSION",
                             help="release version (every image's tag; overrides the fleet file's `version`)")
-    parser.add_argument("--vault-password-file", metavar="FILE",
-                        help="file holding the vault password (or set ROSDEPLOY_VAULT_PASSWORD[_FILE])")
+    from rosdeploy.cli.vault import add_vault_options   # imported here: cli.vault imports this module
+    add_vault_options(parser)
+
+
+def inventory_targets(project: Any, limit: str | None, out: Output) -> tuple[Any, ...]:
+    """--limit's robots; the inventory's warnings and a pattern's unmatched terms are printed, as
+    Ansible prints its warnings (another tool's vars, duplicate keys, `web:nomatch`)."""
+    found: list[Any] = []
+    hosts = project.targets(limit, found)
+    for problem in (*project.inventory.warnings, *found):
+        out.warn(f"warning: {problem}")
+    return tuple(hosts)

@@ -12,7 +12,8 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
-from rosdeploy.cli.common import add_command, add_fleet_args
+from rosdeploy.cli.common import add_command, add_fleet_args, inventory_targets
+from rosdeploy.cli.vault import vault_from_args
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
 from rosdeploy.output import Output
 
@@ -52,10 +53,9 @@ def _load(args: argparse.Namespace, out: Output) -> tuple[Any, tuple[Host, ...]]
     from rosdeploy.project import load_project
 
     project = load_project(args.fleet, inventory=args.inventory, version=args.release_version,
-                           vault_password_file=args.vault_password_file,
-                           prompt=getpass.getpass if out.interactive else None)
+                           vault=vault_from_args(args, getpass.getpass if out.interactive else None))
     out.mask(project.secret_values)
-    return project, project.targets(args.limit)
+    return project, inventory_targets(project, args.limit, out)
 
 
 # ---------------------------------------------------------------- validate

@@ -10,7 +10,8 @@ import getpass
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
-from rosdeploy.cli.common import Parser, add_command, add_fleet_args, duration, positive_int
+from rosdeploy.cli.common import Parser, add_command, add_fleet_args, duration, inventory_targets, positive_int
+from rosdeploy.cli.vault import vault_from_args
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
                               EXIT_PARTIAL, InputError)
 from rosdeploy.output import Output, confirm
@@ -108,9 +109,8 @@ def load(args: argparse.Namespace, out: Output, render: bool = True) -> tuple[An
     from rosdeploy.project import gate, load_project, prepare
 
     project = load_project(args.fleet, inventory=args.inventory, version=getattr(args, "release_version", None),
-                           vault_password_file=args.vault_password_file,
-                           prompt=getpass.getpass if out.interactive else None)
-    hosts = project.targets(args.limit)
+                           vault=vault_from_args(args, getpass.getpass if out.interactive else None))
+    hosts = inventory_targets(project, args.limit, out)
     out.mask(project.secret_values)
     if not render:
         return project, hosts, {}

@@ -224,3 +224,18 @@ def test_a_hung_dynamic_inventory_is_stopped(tmp_path: Path, monkeypatch: pytest
     script.chmod(0o755)
     with pytest.raises(InventoryError, match=r"slow.sh --list` did not finish within"):
         load_inventory(str(script))
+
+
+def test_fleet_commands_take_vault_ids_and_print_inventory_warnings(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture) -> None:
+    lab = tmp_path / "lab"
+    shutil.copytree(DATA, lab)
+    robot = next((lab / "inventory" / "host_vars").iterdir())
+    (lab / "inventory" / "group_vars" / "all" / "other.yml").write_text("gpus: 2\n")
+    password = lab / "inventory" / ".vault-password"
+    code = main(["validate", str(lab / "fleet.yml"), "--vault-id", f"lab@{password}",
+                 "--limit", f"{robot.stem}:nomatch"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "warning:" in err and "'nomatch' matches no host or group" in err
+    assert "other.yml:1: gpus:" in err and "did you mean 'gpu'" in err
