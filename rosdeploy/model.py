@@ -1,6 +1,6 @@
 """The plain values that flow between rosdeploy's stages.
 
-    inventory.py -> Inventory/Host      fleet.py -> FleetSpec
+    inventory/ -> Inventory/Host         fleet.py -> FleetSpec
     render.py (Host, FleetSpec) -> RenderedRelease
     deploy.py / rollout.py -> HostResult -> FleetResult
 
@@ -44,7 +44,8 @@ class Host:
     address: str                            # ansible_host, or the name
     port: int = 22                          # ansible_port
     user: str | None = None                 # ansible_user (None: ssh config / local user)
-    key_file: str | None = None             # ansible_ssh_private_key_file
+    key_file: str | None = None             # ansible_ssh_private_key_file, absolute
+    key_file_var: str = ""                  # where key_file was set: "var (file:line)", for messages
     ros_domain_id: int = 0
     devices: Mapping[str, str] = field(default_factory=frozen_map)   # logical name -> path on robot
     udev: tuple[UdevDevice, ...] = ()

@@ -32,9 +32,10 @@ class Project:
     spec: FleetSpec
     inventory: Inventory
 
-    def targets(self, limit: str | None = None) -> tuple[Host, ...]:
-        """The robots `--limit` selects (all of them without one), in inventory order."""
-        return tuple(self.inventory.select(limit))
+    def targets(self, limit: str | None = None, warnings: list[Problem] | None = None) -> tuple[Host, ...]:
+        """The robots `--limit` selects (all of them without one), in inventory order; a term that
+        matches nothing is a warning appended to `warnings` (as in Ansible)."""
+        return tuple(self.inventory.select(limit, warnings))
 
     @property
     def secret_values(self) -> frozenset[str]:
@@ -45,10 +46,14 @@ class Project:
 # `checks` and `render` (Jinja2) are imported where they are used: an emergency rollback
 # loads the project but renders and checks nothing, and each command is a new process.
 def load_project(fleet_path: str, *, inventory: str | None = None, version: str | None = None,
-                 vault_password_file: str | None = None, prompt: Callable[[str], str] | None = None) -> Project:
-    """Load the fleet file, then its inventory (decrypting vault files with the password sources)."""
+                 vault_password_file: str | None = None, prompt: Callable[[str], str] | None = None,
+                 vault: Vault | None = None) -> Project:
+    """Load the fleet file, then its inventory (decrypting vault files with the password sources).
+
+    `vault`, when given (e.g. several --vault-id, see cli.vault.vault_from_args), replaces the
+    password file and prompt arguments."""
     spec = load_fleet(fleet_path, inventory=inventory, version=version)
-    vault = Vault(password_file=vault_password_file, prompt=prompt)
+    vault = vault or Vault(password_file=vault_password_file, prompt=prompt)
     return Project(spec, load_inventory(spec.inventory, vault=vault))
 
 

@@ -113,6 +113,7 @@ class SSHTransport:
         return self._conn.host if port == 22 else f"[{self._conn.host}]:{port}"
 
     def open(self) -> "SSHTransport":
+        self._check_key_file()
         try:
             self._conn.open()
             _no_delay(self._conn.client.get_transport())
@@ -131,6 +132,16 @@ class SSHTransport:
         except OSError as exc:
             raise ConnectError(self.host.name, f"unreachable: {self.endpoint}: {exc.strerror or exc}") from exc
         return self
+
+    def _check_key_file(self) -> None:
+        """A missing key file would surface as paramiko's bare "No such file"; name the file and its var."""
+        key = self.host.key_file and os.path.expanduser(self.host.key_file)
+        if key and not os.access(key, os.R_OK):
+            why = "does not exist" if not os.path.exists(key) else "cannot be read (check its permissions)"
+            raise ConnectError(self.host.name, f"SSH key file {key} {why}; it is set by "
+                               f"{self.host.key_file_var or 'ansible_ssh_private_key_file'}: fix the path (a "
+                               "relative one is taken from the working directory, as in Ansible; write "
+                               "'{{ inventory_dir }}/...' for one beside the inventory)")
 
     def _changed_key_message(self, exc: paramiko.BadHostKeyException) -> str:
         files = ", ".join(known_hosts_for(self.host, self.options))

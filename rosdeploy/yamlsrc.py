@@ -45,7 +45,12 @@ class _Constructor(yaml.constructor.SafeConstructor):
     """Builds scalars (and resolves `<<` merges); refusing duplicate keys is _build_mapping's job."""
 
 
+class Unsafe(str):
+    """An `!unsafe` scalar: Ansible never templates it, and neither does the inventory."""
+
+
 _Constructor.add_constructor("!vault", lambda c, node: Encrypted(c.construct_scalar(node)))
+_Constructor.add_constructor("!unsafe", lambda c, node: Unsafe(c.construct_scalar(node)))
 
 
 @dataclass(frozen=True)
@@ -75,8 +80,11 @@ def dotted(keypath: KeyPath) -> str:
     return out
 
 
-def load(path: str | Path, text: str | None = None) -> Doc:
+def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | None = None) -> Doc:
     """Parse one YAML file; any problem becomes an InputError naming file and line.
+
+    A duplicate key is an error, unless `duplicates` is given: then, as in Ansible
+    (inventories), it is a warning appended there and the last value wins.
 
     Bounded for every caller (fleet file, inventory, vars files, rendered compose files):
     nesting deeper than MAX_DEPTH and alias expansion beyond MAX_EXPANSION times the
@@ -96,7 +104,7 @@ def load(path: str | Path, text: str | None = None) -> Doc:
         return Doc(path, None, {})
     _check_expansion(node, path)
     lines: dict[KeyPath, int] = {}
-    return Doc(path, _build(node, (), lines, path, _Constructor()), lines)
+    return Doc(path, _build(node, (), lines, path, _Constructor(), duplicates), lines)
 
 
 def load_data(text: str, path: str = "<text>") -> Any:
@@ -225,15 +233,16 @@ def _children(node: yaml.Node) -> list[yaml.Node]:
     return []
 
 
-def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: str, c: _Constructor) -> Any:
+def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: str, c: _Constructor,
+           duplicates: list[Problem] | None = None) -> Any:
     lines.setdefault(keypath, node.start_mark.line + 1)
     if not isinstance(node, yaml.ScalarNode) and node.tag not in _COLLECTION_TAGS:
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
                                   f"unsupported YAML tag {node.tag!r}: write a plain list or mapping")])
     if isinstance(node, yaml.MappingNode):
-        return _build_mapping(node, keypath, lines, path, c)
+        return _build_mapping(node, keypath, lines, path, c, duplicates)
     if isinstance(node, yaml.SequenceNode):
-        return [_build(item, keypath + (i,), lines, path, c) for i, item in enumerate(node.value)]
+        return [_build(item, keypath + (i,), lines, path, c, duplicates) for i, item in enumerate(node.value)]
     try:
         return c.construct_object(node, deep=True)
     except yaml.YAMLError as exc:
@@ -245,7 +254,7 @@ def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: s
 
 
 def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath, int], path: str,
-                   c: _Constructor) -> dict:
+                   c: _Constructor, duplicates: list[Problem] | None) -> dict:
     try:
         c.flatten_mapping(node)  # resolves `<<: *anchor` merges
     except yaml.YAMLError as exc:
@@ -259,8 +268,13 @@ def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath
         key = c.construct_object(key_node, deep=True)
         child = keypath + (key,)
         if key in out:
-            raise InputError([Problem(path, key_node.start_mark.line + 1, dotted(child),
-                                      "duplicate key: it is defined twice in the same mapping; keep one")])
+            then = "keep one" if duplicates is None else "the last one is used, as in Ansible; keep one"
+            duplicate = Problem(path, key_node.start_mark.line + 1, dotted(child),
+                                f"duplicate key: it is defined twice in the same mapping; {then}",
+                                severity="error" if duplicates is None else "warning")
+            if duplicates is None:
+                raise InputError([duplicate])
+            duplicates.append(duplicate)
         lines[child] = key_node.start_mark.line + 1
-        out[key] = _build(value_node, child, lines, path, c)
+        out[key] = _build(value_node, child, lines, path, c, duplicates)
     return out

@@ -12,6 +12,8 @@ DEMO_TOPICS = {
     "driver": ("/joint_states", "sensor_msgs/msg/JointState"),
     "perception": ("/detections", "std_msgs/msg/String"),
 }
+# The driver also publishes the robot's mission state, IDLE or BUSY (`rosdeploy sim busy`).
+MODE_TOPIC = ("/robot_mode", "std_msgs/msg/String")
 
 
 @dataclass(frozen=True)

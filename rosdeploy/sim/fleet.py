@@ -19,6 +19,7 @@ import paramiko
 
 from rosdeploy.errors import SimError
 from rosdeploy.sim import registry
+from rosdeploy.sim.faults import heal
 from rosdeploy.sim.images import ensure_images, remove_images
 from rosdeploy.sim.inventory import inventory_text
 from rosdeploy.sim.keys import ensure_keypair, known_hosts_text, public_key
@@ -272,8 +273,9 @@ def start_robot(robot_name: str) -> None:
 
 
 def reset(home: Path | str | None = None) -> SimFleet:
-    """Per-test clean state: every robot running, no compose projects or rosdeploy files
-    on any, the device present, the original host keys, and the registry up."""
+    """Per-test clean state: every robot running with no fault in force (link cut, registry
+    isolated), no compose projects or rosdeploy files on any, the device present, the
+    original host keys, and the registry up."""
     paths = SimPaths(resolve_home(home))
     current = status(paths.home)
     if not current.running:     # a test stopped a robot or the registry: bring them back
@@ -285,6 +287,7 @@ def reset(home: Path | str | None = None) -> SimFleet:
 
 
 def _reset_robot(paths: SimPaths, robot: SimRobot) -> None:
+    heal(robot.name)
     robot_ctl(robot.name, "reset")
     if current_host_key(robot.name) != public_key(paths.host_key(robot.name)):
         restore_host_key(robot.name, paths.home)

@@ -195,3 +195,83 @@ def test_up_again_is_incremental_and_down_then_up_works(fleet: SimFleet) -> None
 def docker_ps_names() -> str:
     return subprocess.run(["docker", "ps", "-a", "--format", "{{.Names}}"], capture_output=True, text=True,
                           check=True).stdout
+
+
+MODE_PROBE = """
+import rclpy, time
+from std_msgs.msg import String
+rclpy.init()
+node = rclpy.create_node("sim_mode_probe")
+got = []
+node.create_subscription(String, "/robot_mode", lambda m: got.append(m.data), 10)
+deadline = time.monotonic() + 15
+while time.monotonic() < deadline and not got:
+    rclpy.spin_once(node, timeout_sec=0.2)
+print(got[-1] if got else "NOTHING")
+"""
+
+
+def ssh_answers(fleet: SimFleet, robot_name: str) -> bool:
+    from conftest import connect
+    try:
+        connect(fleet, robot_name).close()
+        return True
+    except (OSError, paramiko.SSHException):
+        return False
+
+
+def test_a_cut_link_drops_ssh_but_the_robot_runs_on_until_healed(fleet: SimFleet) -> None:
+    sim.cut("robot2")
+    try:
+        assert not ssh_answers(fleet, "robot2")
+        assert ssh_answers(fleet, "robot1")                     # only robot2 is cut
+        assert robot_exec("robot2", ["docker", "info"]).returncode == 0   # its engine runs on
+        assert sim.faults("robot2") == ["-A ROSDEPLOY-SIM-IN -p tcp -m tcp --dport 22 -j DROP"]
+    finally:
+        sim.heal("robot2")
+    assert ssh_answers(fleet, "robot2") and sim.faults("robot2") == []
+
+
+def greets(fleet: SimFleet, robot_name: str) -> bool:
+    """sshd's banner within half a second (a full login would outlast a short cut)."""
+    import socket
+    robot = fleet.robot(robot_name)
+    try:
+        with socket.create_connection((robot.host, robot.ssh_port), timeout=0.5) as conn:
+            conn.settimeout(0.5)
+            return conn.recv(4) == b"SSH-"
+    except OSError:
+        return False
+
+
+def test_a_timed_cut_heals_by_itself(fleet: SimFleet) -> None:
+    sim.cut("robot3", seconds=3)
+    assert not greets(fleet, "robot3")
+    time.sleep(3.5)
+    assert greets(fleet, "robot3") and sim.faults("robot3") == []
+
+
+def test_an_isolated_robot_cannot_pull_but_keeps_its_ssh_link(fleet: SimFleet) -> None:
+    image = f"{REGISTRY}/demo/driver:1.0.0"
+    sim.isolate("robot1", "registry")
+    try:
+        pulled = robot_exec("robot1", ["docker", "pull", image], timeout=60)
+        assert pulled.returncode != 0 and "no route to host" in pulled.stderr
+        assert ssh_answers(fleet, "robot1")
+    finally:
+        sim.heal("robot1")
+    assert robot_exec("robot1", ["docker", "pull", image], timeout=300).returncode == 0
+
+
+def test_busy_sets_the_demo_drivers_robot_mode(fleet: SimFleet) -> None:
+    robot = fleet.robot("robot1")
+    demo_run(robot.name, "simtest-driver", "demo/driver:1.0.0", robot.ros_domain_id,
+             "--label", "com.docker.compose.service=driver")
+    probe = ("exec", "simtest-driver", "python3", "-c", MODE_PROBE)
+    assert docker_on(robot.name, *probe).strip().splitlines()[-1] == "IDLE"
+    sim.busy(robot.name, True)
+    assert docker_on(robot.name, *probe).strip().splitlines()[-1] == "BUSY"
+    sim.busy(robot.name, False)
+    assert docker_on(robot.name, *probe).strip().splitlines()[-1] == "IDLE"
+    with pytest.raises(SimError, match="no running driver container"):
+        sim.busy("robot2", True)

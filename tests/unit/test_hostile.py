@@ -112,7 +112,6 @@ SANDBOX_ESCAPES = [
     "{% import 'env.j2' as e %}{{ e }}",
     "{% macro f() %}{{ f() }}{% endmacro %}{{ f() }}",
     "{{ vars.api_token }}",                  # a vault secret copied into compose.yml
-    "{{ host.vars }}",                       # every var, secrets included
 ]
 
 
@@ -122,6 +121,19 @@ def test_fleet_value_cannot_escape_the_sandbox(capsys: pytest.CaptureFixture, la
     edit(lab, set_env(payload.replace("MARKER", str(marker))))
     refused_everywhere(capsys, lab, "fleet.yml", "services.driver.environment.X")
     assert not marker.exists()
+
+
+@pytest.mark.parametrize("payload", ["{{ host.vars }}", "{{ vars }}", "{{ host }}", "{{ host.vars.items()|list }}",
+                                     "{{ vars|dictsort }}", "{{ host.secret_values }}"])
+def test_a_value_that_dumps_the_vars_leaks_no_secret(capsys: pytest.CaptureFixture, lab: Path, payload: str) -> None:
+    """Refused (the secret would reach compose.yml) or harmless (the vars print as a summary)."""
+    edit(lab, set_env(payload))
+    code, text = cli(capsys, lab, "render")   # cli() asserts no secret or canary in the output
+    assert code in (0, 2), text
+    written = [f for f in (lab / "out").rglob("*") if f.is_file() and f.name != ".env"] if code == 0 else []
+    for f in written:
+        content = f.read_text()
+        assert LAB_SECRET not in content and CANARY not in content and VAULT_CANARY not in content, f
 
 
 @pytest.mark.parametrize("payload", [

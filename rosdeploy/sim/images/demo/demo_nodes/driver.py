@@ -1,11 +1,16 @@
-"""demo/driver: the motor controller's node, sensor_msgs/JointState on /joint_states."""
+"""demo/driver: the motor controller's node, sensor_msgs/JointState on /joint_states, and the
+robot's mission state on /robot_mode (std_msgs/String: IDLE or BUSY, read from a file that
+`rosdeploy sim busy ROBOT on|off` writes in this container)."""
 from __future__ import annotations
 
 import math
 import os
 
 import rclpy
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 
 from demo_nodes import Config
 from demo_nodes.spin import spin_until_stopped
@@ -13,6 +18,9 @@ from demo_nodes.spin import spin_until_stopped
 JOINTS = ["wheel_left_joint", "wheel_right_joint", "arm_joint"]
 # Where a compose file may map the motor controller: its stable name, or the raw tty.
 DEVICES = ("/dev/robot/motor", "/dev/ttyUSB0")
+MODE_TOPIC = "/robot_mode"
+MODE_FILE = os.environ.get("DEMO_MODE_FILE", "/tmp/robot_mode")
+MODE_HZ = 2.0
 
 
 def motor_controller() -> str:
@@ -28,6 +36,21 @@ def motor_controller() -> str:
         return f"motor controller at {path} cannot be opened ({exc.strerror}); simulating it"
 
 
+def robot_mode() -> str:
+    try:
+        with open(MODE_FILE) as f:
+            return f.read().strip() or "IDLE"
+    except OSError:
+        return "IDLE"
+
+
+def publish_mode(node: Node) -> None:
+    # Transient-local, so a probe that joins late still gets the latest mode at once.
+    qos = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    publisher = node.create_publisher(String, MODE_TOPIC, qos)
+    node.create_timer(1.0 / MODE_HZ, lambda: publisher.publish(String(data=robot_mode())))
+
+
 def run(cfg: Config) -> int:
     rclpy.init()
     node = rclpy.create_node("driver")
@@ -36,6 +59,7 @@ def run(cfg: Config) -> int:
     if cfg.fault == "silent":
         log.error(f"driver {cfg.version}: motor controller does not answer; waiting (publishing nothing)")
         return spin_until_stopped(node)
+    publish_mode(node)
     publisher = node.create_publisher(JointState, cfg.topic, 10)
     clock = node.get_clock()
 
