@@ -489,3 +489,14 @@ def test_a_fleet_path_that_is_no_file(capsys: pytest.CaptureFixture, path: str) 
     code = main(["validate", path])
     text = "".join(capsys.readouterr())
     assert code == 2 and path in text and "Traceback" not in text and "internal error" not in text
+
+
+def test_hashed_and_bracketed_entries_still_verify(keys: dict, tmp_path: Path) -> None:
+    known_hosts = tmp_path / "known_hosts"
+    known_hosts.write_text(f"amr1 {' '.join(keys['host'])}\n[10.0.0.5]:2222 {' '.join(keys['host'])}\n"
+                           f"@cert-authority * {' '.join(keys['ca'])}\n")
+    subprocess.run(["ssh-keygen", "-H", "-f", str(known_hosts)], check=True, capture_output=True)
+    known = parse_known_hosts(known_hosts.read_text().splitlines(), str(known_hosts))
+    assert "amr1" not in known_hosts.read_text()     # really hashed
+    assert known.keys.lookup("amr1") and known.keys.lookup("[10.0.0.5]:2222")
+    assert known.keys.lookup("amr2") is None
