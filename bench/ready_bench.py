@@ -15,8 +15,8 @@ beyond loading its few fleet-file lines. Then, for the deploys that do switch: t
 one readiness check on robot1 (the ROS probe in its driver container: rclpy start,
 discovery, the latched /robot_mode), measured the same way deploy.py runs it.
 
-Needs `rosdeploy sim up`; deploys 1.0.0 once. Hold /tmp/rosdeploy-sim.lock around it when
-the tests may run (the sim is shared).
+Needs `rosdeploy sim up`; resets the robots (as the tests' fixture does), deploys 1.0.0
+once. Hold /tmp/rosdeploy-sim.lock around it when the tests may run (the sim is shared).
 """
 from __future__ import annotations
 
@@ -82,6 +82,7 @@ def main() -> None:
     parser.add_argument("--main", default="/work/main", help="checkout of today's code")
     args = parser.parse_args()
     from rosdeploy import sim
+    sim.reset(sim.default_home())          # clean robots, registry up, no fault left by a test
     inventory = str(sim.default_home() / "inventory.yml")
     env = dict(os.environ)
     with tempfile.TemporaryDirectory() as tmp:

@@ -33,6 +33,7 @@ from typing import Any, Callable, ContextManager, Mapping
 
 from rosdeploy import commands
 from rosdeploy.suggest import did_you_mean
+from rosdeploy.yamlsrc import Doc, dotted
 
 # The comparison keys of a topic condition, as YAML-friendly words.
 OPS = {"is": "==", "is_not": "!=", "at_least": ">=", "at_most": "<=", "above": ">", "below": "<"}
@@ -101,8 +102,8 @@ def convert(r: Any, kp: tuple, value: Any) -> ReadyPolicy | bool | None:
     from rosdeploy.fleet import parse_duration
 
     before = len(r.problems)
-    if value is False or not known_keys(r, kp, value, _POLICY_KEYS, "a mapping with `when:` (a list of conditions) and optionally "
-                                                   "interval, max_wait, topic_wait"):
+    if value is False or not known_keys(r, kp, value, _POLICY_KEYS, "a mapping with `when:` (a list of "
+                                        "conditions) and optionally interval, max_wait, topic_wait"):
         return False if value is False else None
     times = {}
     for key in ("interval", "max_wait", "topic_wait"):
@@ -225,8 +226,10 @@ def compare(observed: Any, op: str, expected: Any) -> bool:
 
 def judge(conditions: tuple[Condition, ...], report: Mapping) -> Readiness:
     """The probe's report (observed values per topic condition) -> the first condition that fails."""
-    observed = report.get("ready", [])
-    for c, seen in zip([c for c in conditions if c.kind in ("topic", "quiet")], observed):
+    ros = [c for c in conditions if c.kind in ("topic", "quiet")]
+    observed = list(report.get("ready", []))
+    observed += [{"error": "the probe did not report it"}] * (len(ros) - len(observed))   # never "ready" by omission
+    for c, seen in zip(ros, observed[:len(ros)], strict=True):
         if c.kind == "topic":
             if "value" not in seen:
                 return Readiness(False, c.describe(), seen.get("error", "no message"))
@@ -337,31 +340,64 @@ def wait_ready(check_once: Callable[[], Readiness], policy: ReadyPolicy, cancell
 
 # ------------------------------------------------------- per group / host
 
+# The inventory vars (group or host; also as rosdeploy_ready, rosdeploy_window) that replace
+# the fleet file's settings for those robots.
+GATE_VARS = {"ready": "readiness gate (a mapping with `when:`, or false)",
+             "window": "maintenance window (a mapping with start and duration, or false)"}
+
+
+def checked_var(name: str) -> Callable[[Any], Any]:
+    """The inventory's converter of a `ready`/`window` var: checked where it is set (the
+    inventory names the file and line), kept as written for host_setting."""
+    def check(value: Any) -> Any:
+        from rosdeploy.inventory.hostvars import BadValue
+        from rosdeploy.window import convert as convert_window
+
+        found: list[tuple[tuple, str]] = []
+        reader = _Collect(found)
+        (convert if name == "ready" else convert_window)(reader, (), value)
+        if found:
+            more = f" (and {len(found) - 1} more problem(s) in it)" if len(found) > 1 else ""
+            raise BadValue(f"{dotted((name, *found[0][0]))}: {found[0][1]}{more}", found[0][0])
+        return value
+    return check
+
+
+class _Collect:
+    """The reader protocol of the converters above, collecting (keypath, message)."""
+
+    def __init__(self, found: list) -> None:
+        self.problems = found
+
+    def error(self, kp: tuple, message: str) -> None:
+        self.problems.append((kp, message))
+
+
 def host_setting(spec: Any, host: Any, var: str, problems: list | None = None) -> Any:
-    """The robot's `ready` or `window`: its inventory var (group or host) replaces the fleet
-    file's; false turns it off. Problems in the var go to `problems`, located where the robot is
-    declared (the merged vars no longer know which group file a value came from)."""
+    """The robot's `ready` or `window`: its inventory var (group or host; `rosdeploy_` + var
+    wins) replaces the fleet file's; false turns it off. The inventory checked the value
+    where it is set; what needs the fleet file (a command condition's service) is checked
+    here, into `problems`, located where the robot is declared."""
     from rosdeploy.fleet import Reader
     from rosdeploy.window import convert as convert_window
-    from rosdeploy.yamlsrc import Doc
 
-    fleet_value = getattr(spec, var)
-    if var not in host.vars:
-        return fleet_value
+    used = next((name for name in ("rosdeploy_" + var, var) if name in host.vars), None)
+    if used is None:
+        return getattr(spec, var)
     path, _, line = host.source.rpartition(":")
     r = Reader(Doc(path or host.source, host.vars, {(): int(line)} if line.isdigit() else {}))
-    value = (convert if var == "ready" else convert_window)(r, (host.name, var), host.vars[var])
-    if value and var == "ready":
-        check_services(value, {s.name: s for s in spec.services}, r, (host.name, var))
+    value = (convert if var == "ready" else convert_window)(r, (host.name, used), host.vars[used])
+    if isinstance(value, ReadyPolicy):
+        check_services(value, {s.name: s for s in spec.services}, r, (host.name, used))
     if problems is not None:
         problems.extend(r.problems)
     return None if r.problems or value is False else value
 
 
 def host_problems(spec: Any, hosts: Any) -> list:
-    """Every problem of the robots' `ready`/`window` inventory vars, for the input gate."""
+    """Problems of the robots' `ready`/`window` vars that only the fleet file can tell."""
     problems: list = []
     for host in hosts:
-        for var in ("ready", "window"):
+        for var in GATE_VARS:
             host_setting(spec, host, var, problems)
     return problems

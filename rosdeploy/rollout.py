@@ -163,9 +163,10 @@ def _converge(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Render
         batch = [i for i in waiting if due[done[i].host] <= time.monotonic()]
         results = parallel([by_name[done[i].host] for i in batch],
                            lambda h: apply_host(ctx, h, releases[h.name]), policy.forks, ctx.cancel.set)
-        for i, result in zip(batch, results):
+        for i, result in zip(batch, results, strict=True):
             due.pop(done[i].host)
-            done[i] = replace(result, wave=done[i].wave, earlier=done[i].earlier + (f"{done[i].outcome}: {done[i].reason}",))
+            tried = f"{done[i].outcome}: {done[i].reason}"
+            done[i] = replace(result, wave=done[i].wave, earlier=done[i].earlier + (tried,))
         if _over_budget({done[i].wave for i in batch}, done, policy, notify):
             return True
     return False

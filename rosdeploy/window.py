@@ -41,7 +41,8 @@ class Window:
 
     def describe(self) -> str:
         days = ",".join(DAYS[d] for d in sorted(self.days)) if self.days else "daily"
-        return f"{days} {self.start.isoformat('minutes' if not self.start.second else 'seconds')} for {_hours(self.duration)} ({self.tz})"
+        start = self.start.isoformat("seconds" if self.start.second else "minutes")
+        return f"{days} {start} for {_hours(self.duration)} ({self.tz})"
 
 
 def _hours(d: timedelta) -> str:
@@ -55,8 +56,8 @@ def convert(r: Any, kp: tuple, value: Any) -> Window | bool | None:
     from rosdeploy.fleet import parse_duration
 
     before = len(r.problems)
-    if value is False or not known_keys(r, kp, value, _KEYS, 'a mapping like {days: [mon, tue], start: "01:00", duration: 3h, '
-                                           'tz: Europe/Berlin}'):
+    shape = 'a mapping like {days: [mon, tue], start: "01:00", duration: 3h, tz: Europe/Berlin}'
+    if value is False or not known_keys(r, kp, value, _KEYS, shape):
         return False if value is False else None
     days = _days(r, kp + ("days",), value.get("days", []))
     start = value.get("start")

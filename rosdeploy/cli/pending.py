@@ -1,32 +1,12 @@
 """The CLI side of robots that are busy or away: pending robots in `apply` and `status`."""
 from __future__ import annotations
 
-import argparse
 from typing import Any, Callable, Sequence
 
 from rosdeploy import pending
-from rosdeploy.fleet import parse_duration
 from rosdeploy.model import Host
 from rosdeploy.output import Output
 from rosdeploy.results import FleetResult
-
-
-def add_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--until", metavar="DURATION", type=_duration,
-                   help="keep retrying robots that are unreachable, busy or outside their maintenance "
-                        "window (backoff and jitter) for up to this long, e.g. 2h")
-    p.add_argument("--force", action="store_true",
-                   help="switch even when the readiness gate (ready:) or the maintenance window (window:) says no")
-
-
-def _duration(text: str) -> float:
-    try:
-        seconds = parse_duration(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a duration: use e.g. 90s, 30m or 2h") from None
-    if seconds <= 0:
-        raise argparse.ArgumentTypeError("must be above 0")
-    return seconds
 
 
 def with_pending(project: Any, hosts: Sequence[Host], out: Output) -> tuple[Host, ...]:
@@ -88,5 +68,7 @@ def status_notes(out: Output, rows: Sequence[Any]) -> None:
 
 
 def _age(seconds: int) -> str:
-    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m" if seconds >= 3600 else f"{seconds // 60}m{seconds % 60:02d}s"
+    if seconds >= 3600:
+        return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
+    return f"{seconds // 60}m{seconds % 60:02d}s"
 

@@ -33,7 +33,8 @@ from rclpy.qos import qos_profile_sensor_data
 rclpy.init()
 node = rclpy.create_node("busy_test_gap")
 stamps = []
-node.create_subscription(JointState, "/joint_states", lambda m: stamps.append(time.monotonic()), qos_profile_sensor_data)
+node.create_subscription(JointState, "/joint_states", lambda m: stamps.append(time.monotonic()),
+                         qos_profile_sensor_data)
 end = time.monotonic() + float(sys.argv[1])
 while time.monotonic() < end:
     rclpy.spin_once(node, timeout_sec=0.05)

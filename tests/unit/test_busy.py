@@ -329,3 +329,28 @@ def test_probe_reads_fields_and_tells_zero_from_moving() -> None:
     assert seen == {"value": 0.25}
     ros_probe._note(seen, {"topic": "/odom", "field": "linear.w"}, Twist(0.25))
     assert seen["error"] == "message has no field linear.w"
+
+
+def test_an_inventory_gate_var_is_checked_where_it_is_set(tmp_path: Path) -> None:
+    from rosdeploy.errors import InventoryError
+    from rosdeploy.inventory import load_inventory
+
+    (tmp_path / "inv.yml").write_text(
+        "all:\n"
+        "  children:\n"
+        "    night:\n"
+        "      vars:\n"
+        "        window: {days: [mon], start: '01:00', duration: 3h, tz: Mars/Base}\n"
+        "      hosts:\n"
+        "        r1: {ros_domain_id: 1}\n"
+        "        r2: {ros_domain_id: 2, rosdeploy_ready: {when: [{topic: /robot_mode, field: data, is: IDLE}]}}\n")
+    with pytest.raises(InventoryError) as info:
+        load_inventory(str(tmp_path / "inv.yml"))
+    text = "\n".join(str(p) for p in info.value.problems)
+    assert "inv.yml:5" in text and "window.tz: 'Mars/Base' is not a time zone name" in text
+    (tmp_path / "inv.yml").write_text((tmp_path / "inv.yml").read_text().replace("Mars/Base", "Europe/Berlin"))
+    hosts = load_inventory(str(tmp_path / "inv.yml")).hosts
+    spec = SimpleNamespace(ready=None, window=None, services=())
+    assert ready.host_setting(spec, hosts["r1"], "window").tz == "Europe/Berlin"
+    assert ready.host_setting(spec, hosts["r2"], "ready").conditions[0].value == "IDLE"
+    assert ready.host_setting(spec, hosts["r1"], "ready") is None
