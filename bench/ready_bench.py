@@ -96,10 +96,10 @@ def main() -> None:
             runs["main"].append(apply_seconds(Path(args.main), plain, env))
             runs["branch"].append(apply_seconds(REPO, plain, env))
             runs["ready"].append(apply_seconds(REPO, gated, env))
+        for name, seconds in runs.items():
+            print(f"no-op apply, 3 robots, {name:<7} median {statistics.median(seconds):.2f} s  "
+                  f"(min {min(seconds):.2f}, max {max(seconds):.2f}, {len(seconds)} runs)", flush=True)
         checks = [one_check(gated) for _ in range(args.rounds)]
-    for name, seconds in runs.items():
-        print(f"no-op apply, 3 robots, {name:<7} median {statistics.median(seconds):.2f} s  "
-              f"(min {min(seconds):.2f}, max {max(seconds):.2f}, {len(seconds)} runs)")
     print(f"one readiness check (ROS condition) on robot1: median {statistics.median(checks):.2f} s "
           f"(min {min(checks):.2f}, max {max(checks):.2f})")
 

@@ -121,7 +121,7 @@ def readiness(spec):
     conds = spec["ready"]
     seen = [{} for _ in conds]
     try:
-        found = _discover(node, rclpy, {c["topic"] for c in conds}, min(spec.get("wait", 3.0), 2.0))
+        found = _discover(node, rclpy, {c["topic"] for c in conds}, spec.get("wait", 3.0))
         subs = []
         for i, c in enumerate(conds):
             if c["topic"] not in found:
