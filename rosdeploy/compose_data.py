@@ -20,8 +20,7 @@ class _Raw:
     def lit(value: Any) -> str:
         return str(value).replace("$", "$$")   # compose_str
 
-    @staticmethod
-    def ref(name: str) -> str:
+    def ref(self, name: str) -> str:
         return f"${{{name}:?{name} must be set in .env}}"   # env_ref
 
     def extra(self, svc: Any) -> Mapping[str, Any]:

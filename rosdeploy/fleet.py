@@ -520,7 +520,7 @@ def _compose_validator() -> Any:
     if not _VALIDATOR:
         import json
 
-        import jsonschema
+        import jsonschema  # type: ignore[import-untyped]  # no stubs; used through Any
         schema = json.loads(COMPOSE_SCHEMA.read_text(encoding="utf-8"))
         _VALIDATOR.append(jsonschema.Draft201909Validator(schema))
     return _VALIDATOR[0]
@@ -776,4 +776,4 @@ def _service(name: str, d: dict, version: str) -> Service:
 
 def problem_at(spec: FleetSpec, keypath: KeyPath, message: str, **kw: Any) -> Problem:
     """A Problem located in the fleet file by key path (for checks that run after loading)."""
-    return Doc(spec.path, None, spec.lines).problem(keypath, message, **kw)   # type: ignore[arg-type]  # read only
+    return Doc(spec.path, None, spec.lines).problem(keypath, message, **kw)

@@ -67,16 +67,6 @@ def deployable(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, Rende
     return releases, problems
 
 
-def render_hosts(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
-    """`deployable` without the warnings (what `render` writes); kept under the name `render` calls."""
-    return deployable(project, hosts)[0], []
-
-
-def render_blockers(project: Project, hosts: Sequence[Host]) -> list[Problem]:
-    """Nothing left to report once render_hosts ran `deployable` (kept for the `render` command)."""
-    return []
-
-
 def _render_all(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
     """Render every robot whose inputs allow it; the problems are the render errors.
 

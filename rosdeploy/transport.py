@@ -242,7 +242,7 @@ def _host_keys_file(path: str, mtime_ns: int) -> KnownHosts:
 def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
     """Plain entries (hashed or not) into HostKeys; @revoked into `revoked`; the rest skipped with a warning."""
     keys, revoked, authorities, unreadable = paramiko.HostKeys(), set(), 0, []
-    entries = []
+    entries: list[paramiko.hostkeys.HostKeyEntry] = []
     for number, line in enumerate(lines, 1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -257,7 +257,7 @@ def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
             unreadable.append(number)
         elif blob is not None:
             revoked.add(blob)
-        else:
+        elif entry is not None:
             entries.append(entry)
     for entry in entries:   # a revoked key is never trusted, whatever else the file says
         if (entry.key.get_name(), entry.key.asbytes()) not in revoked:
@@ -286,7 +286,8 @@ def _warnings(path: str, authorities: int, unreadable: list[int]) -> tuple[str, 
         out.append(f"{path}: {authorities} @cert-authority line(s) skipped: rosdeploy cannot verify SSH host "
                    "certificates (paramiko does not); list the robots' plain host keys in known_hosts.")
     if unreadable:
-        out.append(f"{path}: line(s) {', '.join(map(str, unreadable[:10]))} skipped: not a host key rosdeploy can read.")
+        lines = ", ".join(map(str, unreadable[:10]))
+        out.append(f"{path}: line(s) {lines} skipped: not a host key rosdeploy can read.")
     return tuple(out)
 
 

@@ -90,13 +90,12 @@ def _print_problems(out: Output, problems: Sequence[Problem]) -> None:
 # ------------------------------------------------------------------ render
 
 def cmd_render(args: argparse.Namespace, out: Output) -> int:
-    from rosdeploy.project import render_blockers, render_hosts
+    from rosdeploy.project import deployable
 
     project, hosts = _load(args, out)
-    releases, problems = render_hosts(project, hosts)
-    problems = render_blockers(project, hosts) + problems
-    if problems:
-        raise InputError(problems)
+    releases, warnings = deployable(project, hosts)   # every rule validate and check run, or exit 2
+    for warning in warnings:
+        out.warn(f"{warning.severity}: {warning}")
     root = Path(args.out)
     written = [write_release(root / name, release) for name, release in releases.items()]
     if out.as_json:

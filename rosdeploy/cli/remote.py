@@ -112,7 +112,7 @@ def load(args: argparse.Namespace, out: Output, render: bool = True) -> tuple[An
     """Fleet file + inventory + targets (+ releases), validated: input errors stop here, before any robot.
     `render=False` (rollback): the releases kept on the robots are what runs, so neither the time
     to render nor a template error in what would be deployed next may hold up going back."""
-    from rosdeploy.project import gate, load_project, prepare
+    from rosdeploy.project import deployable, load_project
 
     project = load_project(args.fleet, inventory=args.inventory, version=getattr(args, "release_version", None),
                            vault=vault_from_args(args, getpass.getpass if out.interactive else None))
@@ -123,12 +123,8 @@ def load(args: argparse.Namespace, out: Output, render: bool = True) -> tuple[An
     out.mask(project.secret_values)
     if not render:
         return project, hosts, {}
-    releases, problems = prepare(project, hosts)
-    problems = gate(problems)
-    errors = [p for p in problems if p.severity == "error"]
-    if errors:
-        raise InputError(errors)
-    for warning in problems:
+    releases, warnings = deployable(project, hosts)
+    for warning in warnings:
         out.warn(f"{warning.severity}: {warning}")
     return project, hosts, releases
 

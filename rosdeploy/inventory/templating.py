@@ -20,7 +20,8 @@ import threading
 from typing import Any, Iterator, Mapping
 
 import jinja2
-from jinja2.sandbox import SandboxedEnvironment
+
+from rosdeploy.sandbox import Sandbox
 
 from rosdeploy.errors import InventoryError, Problem
 from rosdeploy.inventory.draft import Origin
@@ -57,11 +58,12 @@ def _bool(value: Any) -> bool:
     return str(value).strip().lower() in ("1", "true", "yes", "on", "y", "t")
 
 
-def _environment() -> SandboxedEnvironment:
-    env = SandboxedEnvironment(undefined=jinja2.StrictUndefined, autoescape=False, keep_trailing_newline=True)
-    # lipsum, cycler, joiner and namespace are harmless in the sandbox, but nothing needs them:
-    # fewer objects, fewer ways in.
-    env.globals = {"range": range, "dict": dict}
+def _environment() -> Sandbox:
+    # The fleet file's sandbox (bounded `*`, `**`, `%` and format widths), so a host_vars value
+    # written by another system can no more exhaust memory than a fleet value can. Only the
+    # sandbox's own bounded `range` and `dict` stay as globals: fewer objects, fewer ways in.
+    env = Sandbox(keep_trailing_newline=True)
+    env.globals = {"range": env.globals["range"], "dict": dict}
     # A few of Ansible's filters that inventories use for paths and names; all pure.
     env.filters.update({"basename": posixpath.basename, "dirname": posixpath.dirname, "bool": _bool,
                         "regex_replace": lambda v, p, r="": re.sub(p, r, str(v)),

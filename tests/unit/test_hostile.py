@@ -330,7 +330,7 @@ SERVICE_REFUSED = {
 def test_refused_fleet_values(capsys: pytest.CaptureFixture, lab: Path, name: str) -> None:
     change, key = REFUSED[name]
     edit(lab, lambda d: d.update(change))
-    refused_everywhere(capsys, lab, f"fleet.yml:", key)
+    refused_everywhere(capsys, lab, "fleet.yml:", key)
 
 
 @pytest.mark.parametrize("name", sorted(SERVICE_REFUSED))
@@ -462,7 +462,7 @@ def test_status_with_a_cert_authority_known_hosts_does_not_crash(capsys: pytest.
 def test_environment_values_in_paths_never_reach_a_message(capsys: pytest.CaptureFixture, lab: Path, key: str,
                                                             value: str) -> None:
     edit(lab, lambda d: d.update({key: value}))
-    refused_everywhere(capsys, lab, f"fleet.yml:", key)   # cli() asserts neither value is printed
+    refused_everywhere(capsys, lab, "fleet.yml:", key)   # cli() asserts neither value is printed
 
 
 def test_a_template_linking_outside_its_folder_is_refused(capsys: pytest.CaptureFixture, lab: Path) -> None:
