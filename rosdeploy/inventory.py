@@ -90,6 +90,7 @@ def load_inventory(path: str, vault: Vault | None = None) -> Inventory:
 # ------------------------------------------------------------------ known vars
 
 ROSDEPLOY_VARS = ("ros_domain_id", "ros_network", "devices", "gpu", "udev",
+                  "rosdeploy_images_via", "rosdeploy_images_max_rate",   # read by rosdeploy/images
                   "rosdeploy_known_hosts")  # the last one is read by transport.py, from Host.vars
 CONNECTION_VARS = ("ansible_host", "ansible_port", "ansible_user", "ansible_ssh_private_key_file")
 # Older spellings Ansible still honours; the primary name wins when both are set.

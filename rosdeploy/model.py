@@ -94,6 +94,7 @@ class Service:
     allow_privileged: bool = False          # explicit opt-in the check rule wants
     profiles: tuple[str, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=frozen_map)   # passed through to compose verbatim
+    digest: str | None = None               # `image: repo@sha256:…`: the bytes every robot gets under `tag`
 
 
 @dataclass(frozen=True)
@@ -122,6 +123,16 @@ class RollbackPolicy:
 
 
 @dataclass(frozen=True)
+class ImagePolicy:
+    """How robots get their images (docs/images.md)."""
+
+    via: str = "registry"               # "registry": the robot pulls; "ssh": through rosdeploy's SSH link
+    max_rate: float | None = None       # bytes/s per robot over ssh (None: no cap)
+    total_rate: float | None = None     # bytes/s for all robots together over ssh
+    controller_registry: str | None = None   # the registry as the controller reaches it (None: `registry`)
+
+
+@dataclass(frozen=True)
 class FleetSpec:
     path: str                       # the fleet file
     project: str                    # compose project name on every robot
@@ -145,6 +156,7 @@ class FleetSpec:
     health: HealthPolicy = HealthPolicy()
     rollout: RolloutPolicy = RolloutPolicy()
     rollback: RollbackPolicy = RollbackPolicy()
+    images: ImagePolicy = ImagePolicy()
     vars: Mapping[str, Any] = field(default_factory=frozen_map)  # extra template vars
     # line of every key path in the fleet file, so checks run after loading can say file:line
     lines: Mapping[tuple, int] = field(default_factory=frozen_map, repr=False, compare=False)

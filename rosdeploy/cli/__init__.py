@@ -16,7 +16,7 @@ from rosdeploy.output import Output
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from rosdeploy.cli import offline, remote, sim, vault
+    from rosdeploy.cli import images, offline, remote, sim, vault
 
     parser = argparse.ArgumentParser(
         prog="rosdeploy",
@@ -25,7 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in (offline, remote, sim, vault):
+    for module in (offline, remote, sim, vault, images):
         module.register(sub)
     return parser
 

@@ -7,7 +7,7 @@ from dataclasses import replace
 from typing import Callable, Sequence
 
 from rosdeploy import keeper, runlog
-from rosdeploy.cli import report
+from rosdeploy.cli import images, report
 from rosdeploy.cli.common import add_fleet_args
 from rosdeploy.deploy import RunContext
 from rosdeploy.keeper import kept_connect
@@ -30,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--order-by", help="inventory group prefix to order robots by, e.g. site_")
     p.add_argument("--pause", type=float, help="seconds to wait between waves")
     p.add_argument("--step", action="store_true", help="ask before every wave after the first")
+    images.add_from_bundle(p)
     p.set_defaults(func=cmd_apply)
 
     p = sub.add_parser("plan", help="show what apply would do, changing nothing")
@@ -111,9 +112,13 @@ def cmd_apply(args: argparse.Namespace, out: Output) -> int:
     policy = _policy(spec.rollout, args)
     if not _confirmed(args, out, f"Deploy {spec.project} {spec.version} to {len(hosts)} robot(s)?"):
         return EXIT_INPUT
-    with report.progress_view(out, [h.name for h in hosts]) as view:
-        ctx = context(args, spec, view.progress)
-        result = apply_fleet(ctx, hosts, releases, policy, report.rollout_notifier(out, args, view))
+    supply = images.supply(args, spec, hosts, releases)     # every tag pinned to its digest, once
+    try:
+        with report.progress_view(out, [h.name for h in hosts]) as view:
+            ctx = replace(context(args, spec, view.progress), images=supply)
+            result = apply_fleet(ctx, hosts, releases, policy, report.rollout_notifier(out, args, view))
+    finally:
+        supply.close()
     return _finish(out, result)
 
 
@@ -162,7 +167,8 @@ def cmd_status(args: argparse.Namespace, out: Output) -> int:
 
 def cmd_plan(args: argparse.Namespace, out: Output) -> int:
     project, hosts, releases = load(args, out)
-    rows = _each(args, project.spec, hosts, lambda ctx, h: plan_host(ctx, h, releases[h.name]))
+    supply = images.supply(args, project.spec, hosts, releases)
+    rows = _each(args, project.spec, hosts, lambda ctx, h: plan_host(replace(ctx, images=supply), h, releases[h.name]))
     report.plan(out, rows)
     return EXIT_OK if all(r.reachable and not r.preflight for r in rows) else EXIT_PARTIAL
 

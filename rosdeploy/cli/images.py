@@ -1,0 +1,53 @@
+"""`rosdeploy bundle`, and the image supply every apply and plan starts with (docs/images.md)."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Sequence
+
+from rosdeploy.cli.common import add_fleet_args
+from rosdeploy.errors import EXIT_OK, InputError
+from rosdeploy.images import bundle
+from rosdeploy.images.refs import human_bytes
+from rosdeploy.images.supply import Supply, check_vars, from_registry
+from rosdeploy.model import FleetSpec, Host, RenderedRelease
+from rosdeploy.output import Output
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bundle", help="write a release's images to one file, for sites without a registry")
+    add_fleet_args(p)
+    p.add_argument("--out", required=True, metavar="FILE", help="the bundle to write (an OCI image layout in a tar)")
+    p.set_defaults(func=cmd_bundle)
+
+
+def add_from_bundle(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--from-bundle", metavar="FILE",
+                   help="take the images from a `rosdeploy bundle` file, over SSH (no registry needed)")
+
+
+def supply(args: argparse.Namespace, spec: FleetSpec, hosts: Sequence[Host],
+           releases: dict[str, RenderedRelease]) -> Supply:
+    """Every image tag of the run resolved to its digest once, before any robot changes."""
+    problems = check_vars(hosts)
+    if problems:
+        raise InputError(problems)
+    targets = [releases[h.name] for h in hosts if h.name in releases]
+    source = getattr(args, "from_bundle", None)
+    return bundle.from_bundle(spec, targets, Path(source)) if source else from_registry(spec, targets)
+
+
+def cmd_bundle(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy.cli.remote import load
+    project, hosts, releases = load(args, out)
+    target = Path(args.out)
+    made = bundle.write(project.spec, [releases[h.name] for h in hosts], target)
+    size = target.stat().st_size
+    if out.as_json:
+        out.document({"bundle": str(target), "bytes": size,
+                      "images": {p.ref: {"digest": p.digest, "image_id": p.image_id} for p in made.pins.values()}})
+        return EXIT_OK
+    for pin in made.pins.values():
+        out.line(f"{pin.ref}  {pin.digest}  ({human_bytes(pin.size)} compressed)")
+    out.line(f"wrote {target} ({human_bytes(size)})")
+    return EXIT_OK
