@@ -9,7 +9,7 @@ from rosdeploy.cli.common import add_fleet_args
 from rosdeploy.errors import EXIT_OK, InputError
 from rosdeploy.images import bundle
 from rosdeploy.images.refs import human_bytes
-from rosdeploy.images.supply import Supply, check_vars, from_registry
+from rosdeploy.images.supply import VIA_VAR, Supply, check_vars, from_registry
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.output import Output
 
@@ -26,15 +26,26 @@ def add_from_bundle(p: argparse.ArgumentParser) -> None:
                    help="take the images from a `rosdeploy bundle` file, over SSH (no registry needed)")
 
 
-def supply(args: argparse.Namespace, spec: FleetSpec, hosts: Sequence[Host],
-           releases: dict[str, RenderedRelease]) -> Supply:
-    """Every image tag of the run resolved to its digest once, before any robot changes."""
+def supply(args: argparse.Namespace, out: Output, spec: FleetSpec, hosts: Sequence[Host],
+           releases: dict[str, RenderedRelease]) -> Supply | None:
+    """Every image tag of the run resolved to its digest once, before any robot changes.
+    None: the controller cannot read the registry and every robot pulls by itself; they
+    then pull by tag, unpinned, as before (a site registry only robots can reach)."""
     problems = check_vars(hosts)
     if problems:
         raise InputError(problems)
     targets = [releases[h.name] for h in hosts if h.name in releases]
     source = getattr(args, "from_bundle", None)
-    return bundle.from_bundle(spec, targets, Path(source)) if source else from_registry(spec, targets)
+    if source:
+        return bundle.from_bundle(spec, targets, Path(source))
+    try:
+        return from_registry(spec, targets)
+    except InputError as exc:
+        if any(host.vars.get(VIA_VAR, spec.images.via) == "ssh" for host in hosts):
+            raise
+        out.warn(f"warning: {exc.problems[0]}; images are not pinned by digest in this run "
+                 "(robots pull by tag): set `images.controller_registry` to pin them")
+        return None
 
 
 def cmd_bundle(args: argparse.Namespace, out: Output) -> int:

@@ -112,13 +112,14 @@ def cmd_apply(args: argparse.Namespace, out: Output) -> int:
     policy = _policy(spec.rollout, args)
     if not _confirmed(args, out, f"Deploy {spec.project} {spec.version} to {len(hosts)} robot(s)?"):
         return EXIT_INPUT
-    supply = images.supply(args, spec, hosts, releases)     # every tag pinned to its digest, once
+    supply = images.supply(args, out, spec, hosts, releases)     # every tag pinned to its digest, once
     try:
         with report.progress_view(out, [h.name for h in hosts]) as view:
             ctx = replace(context(args, spec, view.progress), images=supply)
             result = apply_fleet(ctx, hosts, releases, policy, report.rollout_notifier(out, args, view))
     finally:
-        supply.close()
+        if supply is not None:
+            supply.close()
     return _finish(out, result)
 
 
@@ -167,7 +168,7 @@ def cmd_status(args: argparse.Namespace, out: Output) -> int:
 
 def cmd_plan(args: argparse.Namespace, out: Output) -> int:
     project, hosts, releases = load(args, out)
-    supply = images.supply(args, project.spec, hosts, releases)
+    supply = images.supply(args, out, project.spec, hosts, releases)
     rows = _each(args, project.spec, hosts, lambda ctx, h: plan_host(replace(ctx, images=supply), h, releases[h.name]))
     report.plan(out, rows)
     return EXIT_OK if all(r.reachable and not r.preflight for r in rows) else EXIT_PARTIAL
