@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from rosdeploy import sim as simulator
-from rosdeploy.errors import EXIT_ABORTED, EXIT_OK
+from rosdeploy.errors import EXIT_OK
 from robots import REPO, RobotShell, all_healthy, apply, rosdeploy, versions, write_fleet, write_inventory
 
 pytestmark = pytest.mark.integration
