@@ -9,7 +9,7 @@ once `via: registry` and once `via: ssh` (robot3 isolated from the registry). By
 counted on robot3's own interface (what crossed its link; loopback excluded) and, over SSH,
 by the forwarder too. Time is the `pull` step's. Then the no-op apply of 3 robots, and the
 digest resolution alone (`rosdeploy.images.supply.from_registry`), `--rounds` times each.
-Leaves robot3 on 1.1.0 and healthy; resets nothing else, so never run it beside the tests.
+Starts with `sim.reset()` (no release on any robot, no fault); never run it beside the tests.
 """
 from __future__ import annotations
 
@@ -66,13 +66,15 @@ def routes(tmp: Path, fleet) -> dict:
         if via == "ssh":
             sim.isolate(ROBOT, "registry")
         out[via] = {"first 1.0.0": deploy(fleet_file, "1.0.0"), "upgrade 1.1.0": deploy(fleet_file, "1.1.0")}
+        print(via, json.dumps(out[via]), file=sys.stderr)
     sim.heal(ROBOT)
     return out
 
 
 def noop(tmp: Path, fleet, rounds: int) -> dict:
     fleet_file = write_fleet(tmp, write_inventory(fleet, tmp))
-    assert apply(fleet_file, "--version", "1.1.0").code == 0
+    first = apply(fleet_file, "--version", "1.1.0")
+    assert first.code == 0, first.stdout[-2000:] + first.stderr
     walls, resolves = [], []
     for _ in range(rounds):
         began = time.monotonic()
@@ -93,7 +95,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=5)
     args = parser.parse_args()
-    fleet = sim.load()
+    fleet = sim.reset()
     with tempfile.TemporaryDirectory() as tmp:
         result = {"routes": routes(Path(tmp), fleet), "digest_resolution": noop(Path(tmp), fleet, args.rounds),
                   "at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
