@@ -18,10 +18,11 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
 
 from rosdeploy import __version__, commands, hold
 from rosdeploy.errors import CommandFailed, ConnectError, RemoteError
+from rosdeploy.images import pull as image_pull
 from rosdeploy.health import (Poller, Verdict, diagnose, expected_services, settled, start_levels,
                               started_containers, wait_healthy)
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
@@ -31,6 +32,9 @@ from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, S
 from rosdeploy.robot import (RobotState, parse_state, passed_gate, release_services,
                             rollback_target, unhealthy_services)
 from rosdeploy.transport import Result, SSHOptions, Transport, connect
+
+if TYPE_CHECKING:
+    from rosdeploy.images.supply import Supply
 
 Progress = Callable[[str, str], None]   # (robot, what is happening)
 
@@ -50,6 +54,7 @@ class RunContext:
     force: bool = False             # --force: switch regardless of readiness gate and window (hold.py)
     controller: Controller = field(default_factory=this_controller)   # this machine, for lock owners
     connect: Callable[[Host, SSHOptions], Transport] = connect
+    images: "Supply | None" = None      # pinned digests and routes (rosdeploy.images); None: pull by tag
 
 
 def now() -> str:
@@ -313,11 +318,17 @@ def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
 
 def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: dict) -> HostResult:
     new, old = release.release_id, state.current
+    # ---- images (rosdeploy.images: pinned digests, via registry or ssh) ----
     with run.step("pull"):
-        pulled = run.t.run(commands.pull(release.images, timeout=run.spec.command_timeout))
+        if run.ctx.images is not None:
+            pulled = image_pull.pull(run, release)
+        else:
+            pulled = run.t.run(commands.pull(release.images, timeout=run.spec.command_timeout))
     if not pulled.ok:
-        return run.result(FAILED, running_release=old, reason="pull failed, nothing changed: "
-                          + _pull_errors(pulled.stdout, run.spec.registry), **base)
+        why = image_pull.failure(pulled, run) if run.ctx.images is not None else \
+            "pull failed, nothing changed: " + _pull_errors(pulled.stdout, run.spec.registry)
+        return run.result(FAILED, running_release=old, reason=why, **base)
+    # ---- end images ----
     held = hold.before_switch(run, state)      # maintenance window, readiness gate: pulled, nothing restarts
     if held is not None:
         return run.result(held.outcome, running_release=old, reason=held.reason, opens=held.opens, **base)
@@ -380,7 +391,7 @@ def _tarball(run: RobotRun, release: RenderedRelease, pull_output: str) -> bytes
                 "release": release.release_id, "digest": release.digest, "images": images,
                 "deployed_by": run.ctx.operator, "deployed_at": now(), "run": run.ctx.run_id,
                 "rosdeploy": __version__, "files": [f.name for f in release.files],
-                "services": list(expected_services(run.spec))}
+                "services": list(expected_services(run.spec)), "pins": image_pull.digests(run, release)}
     extra = [("manifest.json", json.dumps(manifest, indent=2, sort_keys=True) + "\n", 0o644),
              ("images.txt", "".join(f"{i}\n" for i in release.images), 0o644)]
     buf = io.BytesIO()

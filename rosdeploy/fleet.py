@@ -21,7 +21,8 @@ from typing import Any, Callable, Iterable, Mapping
 
 from rosdeploy import ready as readiness, window as windows, yamlsrc
 from rosdeploy.errors import FleetSpecError, InputError, Problem
-from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, RollbackPolicy, RolloutPolicy,
+from rosdeploy.images.refs import DIGEST_RE, parse_rate
+from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, ImagePolicy, RollbackPolicy, RolloutPolicy,
                              Service, Topic, frozen_map)
 from rosdeploy.yamlsrc import Doc, KeyPath
 
@@ -334,8 +335,12 @@ def _image(r: Reader, kp: KeyPath, value: Any) -> Any:
     if value is BAD:
         return BAD
     if "@" in value:
-        return r.error(kp, "an image digest is not supported here: give the repository only and pin the "
-                           "version with `tag:`")
+        value, _, digest = value.partition("@")
+        if not DIGEST_RE.fullmatch(digest):
+            return r.error(kp, f"{digest!r} is not an image digest: write repo@sha256:<64 hex digits>, or "
+                               "give the repository only and pin the version with `tag:`")
+        checked = _image(r, kp, value)
+        return BAD if checked is BAD else f"{checked}@{digest}"
     last = value.rsplit("/", 1)[-1]
     if ":" in last:
         repo, tag = value.rsplit(":", 1)
@@ -347,6 +352,21 @@ def _image(r: Reader, kp: KeyPath, value: Any) -> Any:
     if not REPOSITORY_RE.fullmatch(value):
         return r.error(kp, f"{value!r} is not a valid image repository: use lower-case path components "
                            "(letters, digits, `.`, `_`, `-`) separated by `/`, e.g. acme/amr-driver")
+    return value
+
+
+def _rate(r: Reader, kp: KeyPath, value: Any) -> Any:
+    try:
+        return parse_rate(value)
+    except ValueError:
+        return r.error(kp, f"{value!r} is not a rate: write bytes per second, e.g. 2MB/s or 500kB/s")
+
+
+def _controller_registry(r: Reader, kp: KeyPath, value: Any) -> Any:
+    value = _string()(r, kp, value)
+    if value is not BAD and not REGISTRY_RE.fullmatch(value.split("://", 1)[-1]):
+        return r.error(kp, f"{value!r} is not a registry address: write host[:port], optionally after "
+                           "http:// or https://, e.g. http://127.0.0.1:5000")
     return value
 
 
@@ -559,6 +579,8 @@ SECTIONS: dict[str, Mapping[str, Convert]] = {
                 "order_by": _order_by, "pause": _duration,
                 "retry": _duration, "retry_max": _duration, "count_busy": _boolean},
     "rollback": {"auto": _boolean, "fleet": _boolean, "keep_releases": _integer(2)},
+    "images": {"via": _enum("registry", "ssh"), "max_rate": _rate, "total_rate": _rate,
+               "controller_registry": _controller_registry},
 }
 TOP = {
     "project": _string(NAME_RE, "project name"),
@@ -750,6 +772,7 @@ def _build(doc: Doc, top: dict) -> FleetSpec:
         health=HealthPolicy(**health),
         rollout=RolloutPolicy(**{k: tuple(v) if k == "waves" else v for k, v in rollout.items()}),
         rollback=RollbackPolicy(**rollback),
+        images=ImagePolicy(**top.get("images", {})),
         vars=frozen_map(top.get("vars")),
         ready=top.get("ready") or None, window=top.get("window") or None,
         lines=frozen_map(doc.lines),
@@ -760,7 +783,8 @@ def _service(name: str, d: dict, version: str) -> Service:
     healthcheck = d.get("healthcheck")
     resources = d.get("resources", {})
     return Service(
-        name=name, image=d["image"], tag=d.get("tag", version), command=d.get("command"),
+        name=name, image=d["image"].split("@")[0], tag=d.get("tag", version), command=d.get("command"),
+        digest=d["image"].partition("@")[2] or None,
         environment=frozen_map(d.get("environment")), secret_env=frozen_map(d.get("secrets")),
         devices=d.get("devices", ()), volumes=tuple(d.get("volumes", ())), gpu=d.get("gpu", False),
         restart=d.get("restart", "unless-stopped"),

@@ -96,6 +96,7 @@ class Service:
     profiles: tuple[str, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=frozen_map)   # passed through to compose verbatim
     compose_interpolate: bool = False       # `$` in `extra` is compose interpolation (else written `$$`)
+    digest: str | None = None               # `image: repo@sha256:…`: the bytes every robot gets under `tag`
 
 
 @dataclass(frozen=True)
@@ -127,6 +128,16 @@ class RollbackPolicy:
 
 
 @dataclass(frozen=True)
+class ImagePolicy:
+    """How robots get their images (docs/images.md)."""
+
+    via: str = "registry"               # "registry": the robot pulls; "ssh": through rosdeploy's SSH link
+    max_rate: float | None = None       # bytes/s per robot over ssh (None: no cap)
+    total_rate: float | None = None     # bytes/s for all robots together over ssh
+    controller_registry: str | None = None   # the registry as the controller reaches it (None: `registry`)
+
+
+@dataclass(frozen=True)
 class FleetSpec:
     path: str                       # the fleet file
     project: str                    # compose project name on every robot
@@ -150,6 +161,7 @@ class FleetSpec:
     health: HealthPolicy = HealthPolicy()
     rollout: RolloutPolicy = RolloutPolicy()
     rollback: RollbackPolicy = RollbackPolicy()
+    images: ImagePolicy = ImagePolicy()
     vars: Mapping[str, Any] = field(default_factory=frozen_map)  # extra template vars
     ready: Any = None               # ready.ReadyPolicy: the readiness gate (None: none)
     window: Any = None              # window.Window: the maintenance window (None: any time)

@@ -113,6 +113,11 @@ class SSHTransport:
         port = self._conn.port
         return self._conn.host if port == 22 else f"[{self._conn.host}]:{port}"
 
+    @property
+    def link(self) -> paramiko.Transport | None:
+        """The paramiko transport under the connection (images.via ssh forwards a port through it)."""
+        return self._conn.transport
+
     def open(self) -> "SSHTransport":
         self._check_key_file()
         try:

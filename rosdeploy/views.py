@@ -31,6 +31,7 @@ class RobotStatus:
     lock: Mapping[str, Any] | None = None
     app_lock: tuple[Mapping[str, Any], ...] = ()     # held lock files of the readiness gate (ready.py)
     pending: Mapping[str, Any] | None = None         # the controller's pending entry (pending.py)
+    images: Mapping[str, Any] = field(default_factory=dict)   # ref -> the digest deployed (manifest `pins`)
 
 
 def quick_state(ctx: RunContext, host: Host, judge_health: bool = False) -> RobotState | RemoteError:
@@ -63,7 +64,7 @@ def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) ->
         services=tuple({"service": c.service, "status": c.status, "health": c.health, "restarts": c.restarts,
                         "image": c.image} for c in state.containers),
         deployed_by=manifest.get("deployed_by"), deployed_at=manifest.get("deployed_at"),
-        lock=state.lock, app_lock=hold.app_locks(ctx, host))
+        lock=state.lock, app_lock=hold.app_locks(ctx, host), images=manifest.get("pins") or {})
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,7 @@ class RobotPlan:
     diffs: tuple[tuple[str, str], ...] = ()      # (file, unified diff); secrets masked by Output
     pulls: tuple[str, ...] = ()
     preflight: tuple[str, ...] = ()
+    images: Mapping[str, str] = field(default_factory=dict)   # ref -> the digest this run would deploy
 
 
 def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPlan:
@@ -100,7 +102,8 @@ def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPla
                   if line.startswith("missing "))
     return RobotPlan(host.name, True, current=state.current, new=release.release_id,
                      up_to_date=state.current == release.release_id, diffs=diffs, pulls=pulls,
-                     preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)))
+                     preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)),
+                     images={p.ref: p.digest for p in ctx.images.pins_of(release)} if ctx.images else {})
 
 
 def _diff(name: str, old: str | None, new: str) -> str:

@@ -20,7 +20,7 @@ from rosdeploy.output import Output
 
 
 def build_parser() -> Parser:
-    from rosdeploy.cli import completion, offline, remote, sim, vault
+    from rosdeploy.cli import completion, images, offline, remote, sim, vault
 
     parser = Parser(
         prog="rosdeploy", root=True,
@@ -30,7 +30,7 @@ def build_parser() -> Parser:
     parser.add_argument("-V", "--version", action="version", version=f"rosdeploy {__version__}",
                         help="print rosdeploy's version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in (offline, remote, sim, vault, completion):
+    for module in (offline, remote, sim, vault, images, completion):
         module.register(sub)
     version = add_command(sub, "version", "print rosdeploy's version", "Print rosdeploy's version.",
                           (EXIT_OK, EXIT_INPUT), "rosdeploy version")

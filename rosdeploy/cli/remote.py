@@ -11,6 +11,7 @@ import time
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
+from rosdeploy.cli import images
 from rosdeploy.cli.common import Parser, add_command, add_fleet_args, duration, inventory_targets, positive_int
 from rosdeploy.cli.vault import vault_from_args
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
@@ -50,6 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(backoff and jitter) for up to this long, e.g. 2h")
     p.add_argument("--force", action="store_true",
                    help="switch even when the readiness gate (ready:) or the maintenance window (window:) says no")
+    images.add_from_bundle(p)
     p.set_defaults(func=cmd_apply, pick_up=True)
 
     p = add_command(sub, "plan", "show what apply would do, changing nothing",
@@ -161,11 +163,16 @@ def cmd_apply(args: argparse.Namespace, out: Output) -> int:
     policy = _policy(spec.rollout, args)
     if not _confirmed(args, out, f"Deploy {spec.project} {spec.version} to {len(hosts)} robot(s)?"):
         return _declined(out)
-    with report.progress_view(out, [h.name for h in hosts]) as view:
-        ctx = context(args, spec, view.progress)
-        notify = pending_cli.notifier(out, spec, ctx.run_id, report.rollout_notifier(out, args, view))
-        until = time.monotonic() + args.until if args.until else None
-        result = apply_fleet(ctx, hosts, releases, policy, notify, until=until)
+    supply = images.supply(args, out, spec, hosts, releases)     # every tag pinned to its digest, once
+    try:
+        with report.progress_view(out, [h.name for h in hosts]) as view:
+            ctx = replace(context(args, spec, view.progress), images=supply)
+            notify = pending_cli.notifier(out, spec, ctx.run_id, report.rollout_notifier(out, args, view))
+            until = time.monotonic() + args.until if args.until else None
+            result = apply_fleet(ctx, hosts, releases, policy, notify, until=until)
+    finally:
+        if supply is not None:
+            supply.close()
     pending_cli.after_apply(spec, result)
     return _finish(out, result)
 
@@ -234,7 +241,8 @@ def cmd_plan(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.views import plan_host
 
     project, hosts, releases = load(args, out)
-    rows = _each(args, project.spec, hosts, lambda ctx, h: plan_host(ctx, h, releases[h.name]))
+    supply = images.supply(args, out, project.spec, hosts, releases)
+    rows = _each(args, project.spec, hosts, lambda ctx, h: plan_host(replace(ctx, images=supply), h, releases[h.name]))
     report.plan(out, rows)
     return EXIT_OK if all(r.reachable and not r.preflight for r in rows) else EXIT_PARTIAL
 

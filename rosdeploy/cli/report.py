@@ -241,6 +241,8 @@ def plan(out: Output, rows: Sequence[Any]) -> None:
             out.error(f"  preflight: {problem}")
         for image in r.pulls:
             out.line(f"  pull {image}")
+        for ref, digest in r.images.items():
+            out.line(f"  image {ref} pinned to {digest}")
         for name, diff in r.diffs:
             out.line(f"  {name} changes:" if diff else f"  {name}")
             out.line("\n".join("    " + line for line in diff.splitlines()))

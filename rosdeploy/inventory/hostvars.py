@@ -195,6 +195,16 @@ def _to_remote_root(value: Any) -> str:
     return value
 
 
+def _to_route(value: Any) -> str:
+    if value in IMAGE_ROUTES:
+        return str(value)
+    raise BadValue(f"must be one of {', '.join(IMAGE_ROUTES)}, got {value!r}{did_you_mean_hint(value, IMAGE_ROUTES)}")
+
+
+def _as_is(value: Any) -> Any:
+    return value      # checked by its reader (rosdeploy.images.supply.check_vars: the rate's units)
+
+
 def _to_compose(value: Any) -> str:
     if value in COMPOSE_CHOICES:
         return str(value)
@@ -308,6 +318,7 @@ def _is_udev(value: Any) -> bool:
 
 PREFIX = "rosdeploy_"
 COMPOSE_CHOICES = ("auto", "v1", "v2")
+IMAGE_ROUTES = ("registry", "ssh")
 _ASCII_INT = re.compile(r"[0-9]+")
 
 CONVERTERS: dict[str, Callable[[Any], Any]] = {
@@ -336,6 +347,8 @@ PREFIXED_ONLY: dict[str, Var] = {
     "rosdeploy_deploy_root": Var(None, _to_remote_root),
     "rosdeploy_home": Var(None, _to_remote_root),
     "rosdeploy_compose": Var(None, _to_compose),
+    "rosdeploy_images_via": Var(None, _to_route),          # docs/images.md
+    "rosdeploy_images_max_rate": Var(None, _as_is),
 }
 PREFIXED_VARS = frozenset({*(PREFIX + name for name in OWN_VARS), *PREFIXED_ONLY})
 CONSUMED_VARS = (*OWN_VARS, *PREFIXED_VARS, *(var for names in CONNECTION.values() for var in names))
