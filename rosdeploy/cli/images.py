@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 from rosdeploy.cli.common import add_command, add_fleet_args
-from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError
+from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
 from rosdeploy.images.refs import human_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.output import Output
@@ -45,7 +45,7 @@ def supply(args: argparse.Namespace, out: Output, spec: FleetSpec, hosts: Sequen
 
     problems = check_vars(hosts)
     if problems:
-        raise InputError(problems)
+        raise InputError([Problem("", None, "", problem) for problem in problems])
     targets = [releases[h.name] for h in hosts if h.name in releases]
     source = getattr(args, "from_bundle", None)
     if source:

@@ -135,7 +135,7 @@ class Forward:
     def _relay(self, chan: paramiko.Channel, up: socket.socket) -> None:
         up.settimeout(None)
         while True:
-            ready, _, _ = select.select([chan, up], [], [], 60)
+            ready, _, _ = select.select([chan, up], [], [], 60)    # type: ignore[type-var]  # Channel has fileno()
             if not ready:
                 continue
             if chan in ready:

@@ -44,6 +44,7 @@ def command(pins: list[Pin], registry: str | None, timeout: float | None,
 
 def pull(run: "RobotRun", release: RenderedRelease) -> Result:
     supply = run.ctx.images
+    assert supply is not None and run.t is not None, "called for a run with an image supply, once connected"
     pins = supply.pins_of(release)
     _say_moved(run, supply.moved())
     timeout = run.spec.command_timeout
@@ -68,8 +69,9 @@ def pull(run: "RobotRun", release: RenderedRelease) -> Result:
 
 
 def _say_moved(run: "RobotRun", moved: dict[str, str]) -> None:
+    pins = run.ctx.images.pins if run.ctx.images else {}
     for ref, now in sorted(moved.items()):
-        pinned = run.ctx.images.pins[ref].digest
+        pinned = pins[ref].digest
         message = (f"tag moved: {ref} now names {now[:19]}…; this run keeps deploying {pinned[:19]}…, "
                    "what it resolved at its start (the canary's bytes)")
         run.ctx.progress(run.host.name, message)
@@ -101,7 +103,7 @@ def failure(result: Result, run: "RobotRun") -> str:
     missing = [line.split(" ", 2) for line in result.stdout.splitlines() if line.startswith("missing ")]
     detail = "; ".join(f"{m[1]}: {m[2].strip() if len(m) > 2 else ''}" for m in missing) or \
         (result.stdout + result.stderr).strip()[-400:]
-    if supply.via(run.host) == "registry" and any(word in detail.lower() for word in UNREACHABLE):
+    if supply is not None and supply.via(run.host) == "registry" and any(word in detail.lower() for word in UNREACHABLE):
         registry = split_ref(missing[0][1])[0] if missing else run.spec.registry
         return (f"preflight: the robot cannot reach the registry {registry or run.spec.registry} ({detail}); "
                 "nothing changed. A robot without a route to the registry can take its images over SSH: "

@@ -150,19 +150,19 @@ def _handler(relay: Relay) -> type[BaseHTTPRequestHandler]:
             if path in ("/v2", "/v2/"):
                 return self._send(200, b"{}", "application/json", body=body)
             if match := _MANIFEST_PATH.fullmatch(path):
-                found = relay.extra.get(match["ref"])
-                found = (*found, match["ref"]) if found else relay.backend.manifest(match["name"], match["ref"])
-                if found:
-                    return self._send(200, found[0], found[1], found[2], body)
+                extra = relay.extra.get(match["ref"])
+                manifest = (*extra, match["ref"]) if extra else relay.backend.manifest(match["name"], match["ref"])
+                if manifest:
+                    return self._send(200, manifest[0], manifest[1], manifest[2], body)
                 return self._send(404, b'{"errors":[{"code":"MANIFEST_UNKNOWN"}]}', "application/json", body=body)
             if match := _BLOB_PATH.fullmatch(path):
                 if match["digest"] in relay.extra:
                     return self._send(200, relay.extra[match["digest"]][0], "application/octet-stream",
                                       match["digest"], body)
                 start = _range_start(self.headers.get("Range"))
-                found = relay.backend.blob(match["name"], match["digest"], start)
-                if found:
-                    return self._blob(match["digest"], start, *found, body=body)
+                blob = relay.backend.blob(match["name"], match["digest"], start)
+                if blob:
+                    return self._blob(match["digest"], start, *blob, body=body)
             return self._send(404, b'{"errors":[{"code":"BLOB_UNKNOWN"}]}', "application/json", body=body)
 
         def _send(self, code: int, data: bytes, kind: str, digest: str = "", body: bool = True) -> None:
@@ -189,7 +189,7 @@ def _handler(relay: Relay) -> type[BaseHTTPRequestHandler]:
                     break
                 self.wfile.write(data)
             if hasattr(chunks, "close"):
-                chunks.close()      # type: ignore[attr-defined]
+                chunks.close()
 
     return Handler
 
