@@ -103,7 +103,8 @@ def failure(result: Result, run: "RobotRun") -> str:
     missing = [line.split(" ", 2) for line in result.stdout.splitlines() if line.startswith("missing ")]
     detail = "; ".join(f"{m[1]}: {m[2].strip() if len(m) > 2 else ''}" for m in missing) or \
         (result.stdout + result.stderr).strip()[-400:]
-    if supply is not None and supply.via(run.host) == "registry" and any(word in detail.lower() for word in UNREACHABLE):
+    unreachable = any(word in detail.lower() for word in UNREACHABLE)
+    if supply is not None and supply.via(run.host) == "registry" and unreachable:
         registry = split_ref(missing[0][1])[0] if missing else run.spec.registry
         return (f"preflight: the robot cannot reach the registry {registry or run.spec.registry} ({detail}); "
                 "nothing changed. A robot without a route to the registry can take its images over SSH: "
