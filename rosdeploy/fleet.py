@@ -481,7 +481,8 @@ SECTIONS: dict[str, Mapping[str, Convert]] = {
                "topic_window": _duration, "probe_service": _string(NAME_RE, "service name")},
     "rollout": {"waves": _listof(_wave, "waves"), "max_fail": _max_fail, "forks": _integer(1),
                 "order_by": _order_by, "pause": _duration},
-    "rollback": {"auto": _boolean, "fleet": _boolean, "keep_releases": _integer(2)},
+    "rollback": {"auto": _boolean, "fleet": _boolean, "keep_releases": _integer(2),
+                 "guard": _enum("revert", "finish", "off"), "guard_margin": _duration},
 }
 TOP = {
     "project": _string(NAME_RE, "project name"),

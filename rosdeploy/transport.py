@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import getpass
+import logging
 import os
 import select
 import socket
@@ -26,6 +27,15 @@ from fabric import Config, Connection
 from rosdeploy.commands import Command
 from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError
 from rosdeploy.model import Host
+
+
+# paramiko reports a dropped connection from its own threads through its loggers (with
+# tracebacks); with no handler, Python's last-resort handler would print them into the
+# progress output. The failed command reports the loss itself (ConnectError).
+logging.getLogger("paramiko").addHandler(logging.NullHandler())
+
+KEEPALIVE = 2.0       # s: an SSH keepalive after this long without traffic...
+LINK_TIMEOUT = 8.0    # s: ...and the link counts as lost when nothing sent is acknowledged for this long
 
 
 @dataclass(frozen=True)
@@ -115,6 +125,7 @@ class SSHTransport:
         try:
             self._conn.open()
             _no_delay(self._conn.client.get_transport())
+            _keepalive(self._conn.client.get_transport())
         except paramiko.BadHostKeyException as exc:
             raise HostKeyError(self.host.name, self._changed_key_message(exc)) from exc
         except paramiko.SSHException as exc:
@@ -158,6 +169,8 @@ class SSHTransport:
                 chan.shutdown_write()
             out, err = _drain(chan, started + timeout)
             code = chan.recv_exit_status()
+            if code == -1 and not self._conn.transport.is_active():
+                raise EOFError("the SSH connection dropped")
         except TimeoutError as exc:
             raise ConnectError(self.host.name, f"`{command.display()}` timed out after {timeout:g}s") from exc
         except (paramiko.SSHException, OSError, EOFError) as exc:
@@ -180,6 +193,18 @@ def _no_delay(transport: paramiko.Transport | None) -> None:
     sock = getattr(transport, "sock", None)
     if isinstance(sock, socket.socket):
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+
+def _keepalive(transport: paramiko.Transport | None) -> None:
+    """Notice a silently dropped link (Wi-Fi gone, robot powered off) within seconds, not at
+    the command's timeout: keepalives keep data in flight, and the kernel gives up on the
+    connection when none of it is acknowledged for LINK_TIMEOUT."""
+    if transport is None:
+        return
+    transport.set_keepalive(int(KEEPALIVE))
+    sock = getattr(transport, "sock", None)
+    if isinstance(sock, socket.socket) and hasattr(socket, "TCP_USER_TIMEOUT"):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_USER_TIMEOUT, int(LINK_TIMEOUT * 1000))
 
 
 @functools.lru_cache(maxsize=32)

@@ -219,10 +219,9 @@ def status(out: Output, rows: Sequence[Any]) -> None:
             continue
         services = ", ".join(f"{s['service']}:{s['health'] or s['status']}" for s in r.services) or "none"
         drift = "-" if r.drift is None else ("DRIFT" if r.drift else "in sync")
-        health = "healthy" if r.healthy else ("not deployed" if not r.release else "UNHEALTHY")
         last = f"{r.deployed_at or '-'} by {r.deployed_by or '-'}"
-        table.append([r.host, health, r.version or "-", drift, services, last])
-    out.table(["ROBOT", "STATE", "VERSION", "DRIFT", "SERVICES", "LAST DEPLOY"], table)
+        table.append([r.host, r.state, r.version or "-", drift, services, last, r.reason[:160]])
+    out.table(["ROBOT", "STATE", "VERSION", "DRIFT", "SERVICES", "LAST DEPLOY", "WHY"], table)
 
 
 def plan(out: Output, rows: Sequence[Any]) -> None:
