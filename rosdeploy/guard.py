@@ -93,7 +93,7 @@ def probe_spec(topics: list[dict], window: float) -> str:
 GUARD_SCRIPT = r'''
 set -u
 g=$1; name=$2
-PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin; export PATH
+PATH=${PATH:-/usr/bin:/bin}:/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin; export PATH
 say() { printf '%s %s\n' "$(date -u +%Y-%m-%dT%H:%M:%SZ)" "$*" >> "$g/log" 2>/dev/null; }
 # get KEY FILE: the last value of KEY (read by the shell itself: this runs every second)
 get() {

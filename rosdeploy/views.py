@@ -125,6 +125,7 @@ class RobotPlan:
     diffs: tuple[tuple[str, str], ...] = ()      # (file, unified diff); secrets masked by Output
     pulls: tuple[str, ...] = ()
     preflight: tuple[str, ...] = ()
+    guard: str = ""        # what the robot's guard does if this deploy loses its controller, and when
 
 
 def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPlan:
@@ -148,7 +149,20 @@ def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPla
                   if line.startswith("missing "))
     return RobotPlan(host.name, True, current=state.current, new=release.release_id,
                      up_to_date=state.current == release.release_id, diffs=diffs, pulls=pulls,
-                     preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)))
+                     preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)),
+                     guard=guard_plan(ctx.spec, state.current))
+
+
+def guard_plan(spec, current: str | None) -> str:
+    """The guard's deadline and action, as `plan` shows it."""
+    policy = spec.rollback
+    if policy.guard == "off":
+        return "off (rollback.guard): a deploy that loses its controller stays as it was left"
+    act = ("runs the gate on the robot, then activates or reverts" if policy.guard == "finish"
+           else f"reverts to {current}" if current else "stops the new release")
+    return (f"{policy.guard}: if not activated within {spec.health.timeout + policy.guard_margin:g}s of its start "
+            f"(health.timeout {spec.health.timeout:g}s + rollback.guard_margin {policy.guard_margin:g}s), "
+            f"the robot {act}")
 
 
 def _diff(name: str, old: str | None, new: str) -> str:

@@ -238,6 +238,8 @@ def plan(out: Output, rows: Sequence[Any]) -> None:
         out.line(out.paint(f"{r.host}: {r.current or 'nothing'} -> {r.new}", "bold"))
         for problem in r.preflight:
             out.error(f"  preflight: {problem}")
+        if r.guard:
+            out.line(f"  guard: {r.guard}")
         for image in r.pulls:
             out.line(f"  pull {image}")
         for name, diff in r.diffs:

@@ -1,0 +1,220 @@
+"""The deploy guard on the simulated fleet: a deploy whose controller is killed, whose SSH
+link is cut, or whose robot restarts, still ends on a release that passed its gate, by
+the robot's own means (docs/guard.md has the table of these cases and their outcomes).
+
+Faults are per robot, so the cases run in three lanes at once, one lane per robot, each
+case one deploy on its own robot; the controller is a real `rosdeploy apply` process.
+After each case the robot's REAL state is read over SSH (as root, host key verified).
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from rosdeploy import sim as simulator
+from rosdeploy.deploy import PAUSE_BEFORE_ACTIVATE
+from robots import REPO, RobotShell, all_healthy, write_fleet, write_inventory
+
+pytestmark = pytest.mark.integration
+
+GATE = 30            # health.timeout of the tests' fleet files (s)
+MARGIN = 8           # rollback.guard_margin
+COMMAND_TIMEOUT = 20  # ssh.command_timeout: the guard's deadline before the start
+DIR = "/home/robot/rosdeploy/demo"
+IMAGES = ("registry.local:5000/demo/driver:{v}", "registry.local:5000/demo/perception:{v}")
+
+
+@dataclass(frozen=True)
+class Case:
+    fault: str          # kill | cut | reboot
+    at: str             # the progress step the fault hits: pull, start, health, activate
+    version: str        # 1.1.0 | 1.2.0-bad
+    mode: str = "revert"
+
+    @property
+    def name(self) -> str:
+        return f"{self.fault}@{self.at} {self.version} ({self.mode})"
+
+
+LANES = {
+    "robot1": [Case("kill", "pull", "1.1.0"), Case("kill", "start", "1.2.0-bad"), Case("kill", "health", "1.1.0"),
+               Case("cut", "health", "1.2.0-bad"), Case("reboot", "health", "1.1.0")],
+    "robot2": [Case("kill", "pull", "1.2.0-bad"), Case("kill", "start", "1.1.0"), Case("kill", "health", "1.2.0-bad"),
+               Case("reboot", "start", "1.2.0-bad"), Case("kill", "health", "1.1.0", "finish")],
+    "robot3": [Case("kill", "activate", "1.1.0"), Case("cut", "health", "1.1.0"), Case("reboot", "start", "1.1.0"),
+               Case("reboot", "health", "1.2.0-bad"), Case("kill", "health", "1.2.0-bad", "finish")],
+}
+
+
+def cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess[str]:
+    """The CLI in a process of its own: lanes run at once, and in-process runs share stdout."""
+    return subprocess.run([sys.executable, "-m", "rosdeploy", *map(str, args)], capture_output=True, text=True,
+                          cwd=REPO, env=env or os.environ.copy(), timeout=300)
+
+
+def status_of(fleet_file: Path, robot: str) -> dict:
+    out = cli("--json", "status", fleet_file, "--limit", robot)
+    return json.loads(out.stdout)["robots"][0]
+
+
+def guard_gone(shell: RobotShell) -> bool:
+    return shell.run(f"docker ps -aq --filter label=rosdeploy.guard; ls {DIR}/.guard/state {DIR}/.guard/acting "
+                     "2>/dev/null || true").strip() == ""
+
+
+def running_release(shell: RobotShell) -> set[str]:
+    labels = shell.run("for c in $(docker ps -q --filter label=com.docker.compose.project=demo); do "
+                       "docker inspect --format '{{index .Config.Labels \"com.docker.compose.project.working_dir\"}}' "
+                       "$c; done")
+    return {line.rstrip("/").rsplit("/", 1)[-1] for line in labels.split()}
+
+
+class Lane:
+    def __init__(self, fleet, robot: str, files: dict[str, Path]) -> None:
+        self.fleet, self.robot, self.files = fleet, robot, files
+        self.rows: list[tuple[str, str, str]] = []       # (case, outcome, problems)
+
+    def shell(self) -> RobotShell:
+        return RobotShell(self.fleet, self.robot)
+
+    def run(self, cases: list[Case]) -> None:
+        for case in cases:
+            problems, outcome = self.one(case)
+            self.rows.append((case.name, outcome, "; ".join(problems)))
+
+    def one(self, case: Case) -> tuple[list[str], str]:
+        problems: list[str] = []
+        shell = self.shell()
+        before = shell.current()
+        if case.at == "pull":       # the target's images are pulled again, so the kill lands in the pull
+            shell.run("docker rmi " + " ".join(i.format(v=case.version) for i in IMAGES) + " >/dev/null 2>&1 || true")
+        shell.close()
+        env = dict(os.environ, PYTHONPATH=str(REPO))
+        if case.at == "activate":
+            env[PAUSE_BEFORE_ACTIVATE] = "60"
+        fleet_file = self.files[case.mode]
+        ctl = subprocess.Popen([sys.executable, "-m", "rosdeploy", "--json", "apply", str(fleet_file), "--yes",
+                                "--limit", self.robot, "--version", case.version],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=env)
+        progress = self.fault_at(ctl, case)
+        seen = None
+        if case.fault == "kill":
+            ctl.send_signal(signal.SIGKILL)
+            ctl.wait()
+            seen = status_of(fleet_file, self.robot)
+        elif case.fault == "cut":
+            try:
+                out, err = ctl.communicate(timeout=GATE + 30)     # the controller notices by itself
+            except subprocess.TimeoutExpired:
+                ctl.kill()
+                out, err = ctl.communicate()
+                problems.append("the controller did not notice the cut link")
+            simulator.heal(self.robot)
+            seen = status_of(fleet_file, self.robot)
+            self.check_report(out, err, problems)
+        else:
+            seen = status_of(fleet_file, self.robot)              # the robot is back: its guard acts
+            out, err = ctl.communicate(timeout=120)
+            self.check_report(out, err, problems)
+        if seen.get("state") not in ("INTERRUPTED", "RECOVERING"):
+            problems.append(f"status said {seen.get('state')!r} ({seen.get('reason')!r}) while interrupted")
+        outcome = self.settle(case, before, problems)
+        again = cli("--json", "apply", self.files["revert"], "--yes", "--limit", self.robot)
+        if again.returncode != 0:
+            problems.append(f"the next apply did not converge: {again.stdout[-400:]} {again.stderr[-400:]}")
+        if "Traceback" in progress:
+            problems.append("the controller printed a traceback")
+        return problems, outcome
+
+    def fault_at(self, ctl: subprocess.Popen, case: Case) -> str:
+        """Read the controller's progress until the case's step; then put the fault in."""
+        marker = {"pull": " pull", "start": " start ", "health": " health", "activate": "pausing"}[case.at]
+        seen = []
+        for line in ctl.stderr:
+            seen.append(line)
+            if marker in line:
+                break
+        if case.at in ("start", "health"):
+            time.sleep(1.0)          # well inside the step
+        if case.fault == "cut":
+            simulator.cut(self.robot)
+        elif case.fault == "reboot":
+            simulator.reboot(self.robot)
+        return "".join(seen)
+
+    @staticmethod
+    def check_report(out: str, err: str, problems: list[str]) -> None:
+        if "Traceback" in err or "Error reading SSH protocol banner" in err:
+            problems.append("paramiko/traceback text in the controller's output")
+        try:
+            host = json.loads(out)["hosts"][0]
+        except (ValueError, IndexError, KeyError):
+            problems.append(f"no result document from the controller: {err[-300:]}")
+            return
+        if "connection lost during" not in host["reason"] or "guard" not in host["reason"]:
+            problems.append(f"the controller's reason does not say where it lost the robot and what the "
+                            f"guard does: {host['reason']!r}")
+
+    def settle(self, case: Case, before: str, problems: list[str]) -> str:
+        """Wait for the guard to end the deploy, then read the robot's real state."""
+        deadline = time.monotonic() + GATE + MARGIN + COMMAND_TIMEOUT + 60
+        shell = self.shell()
+        while not guard_gone(shell) and time.monotonic() < deadline:
+            time.sleep(2)
+        if not guard_gone(shell):
+            problems.append("the guard did not end the deploy by its deadline")
+        current = shell.current()
+        history = shell.history()
+        last = history[-1] if history else {}
+        if not all_healthy(shell, settle=30):
+            problems.append("not healthy")
+        if running_release(shell) != {current}:
+            problems.append(f"running {running_release(shell)} but current is {current}")
+        if not any(e.get("release") == current and e.get("result") == "active" for e in history):
+            problems.append(f"current {current} was never activated")
+        if shell.run(f"test -e {DIR}/.lock && echo held || true").strip():
+            problems.append("a lock is left")
+        want = "guard-finish" if case.mode == "finish" and case.version == "1.1.0" else "guard-rollback"
+        if last.get("event") != want:
+            problems.append(f"history ends with {last.get('event')!r}, not {want}")
+        why = "robot restarted mid-deploy" if case.fault == "reboot" else "controller lost"
+        if why not in str(last.get("reason", "")):
+            problems.append(f"history's reason {last.get('reason')!r} does not say {why!r}")
+        expect = case.version if want == "guard-finish" else None
+        if expect and not current.startswith(expect):
+            problems.append(f"finish mode should have kept {expect}, runs {current}")
+        if not expect and current != before:
+            problems.append(f"should be back on {before}, is on {current}")
+        shell.close()
+        return f"{last.get('event')} -> {current.rsplit('-', 1)[0]} ({last.get('result')}): {last.get('reason')}"
+
+
+def test_a_deploy_ends_on_a_gated_release_whatever_happens_to_its_controller(fleet, tmp_path: Path) -> None:
+    inventory = write_inventory(fleet, tmp_path)
+    files = {}
+    for mode in ("revert", "finish"):
+        folder = tmp_path / mode
+        folder.mkdir()
+        files[mode] = write_fleet(folder, inventory, health={"timeout": f"{GATE}s", "stable": "2s"},
+                                  rollback={"guard": mode, "guard_margin": f"{MARGIN}s"},
+                                  ssh={"command_timeout": f"{COMMAND_TIMEOUT}s"})
+    base = cli("--json", "apply", files["revert"], "--yes", "--waves", "100%")
+    assert base.returncode == 0, base.stderr[-2000:]
+    lanes = [Lane(fleet, robot, files) for robot in LANES]
+    with ThreadPoolExecutor(max_workers=len(lanes)) as pool:
+        list(pool.map(lambda lane: lane.run(LANES[lane.robot]), lanes))
+    rows = [(lane.robot, *row) for lane in lanes for row in lane.rows]
+    table = "\n".join(f"| {r} | {c} | {o} | {p or 'ok'} |" for r, c, o, p in rows)
+    Path(os.environ.get("ROSDEPLOY_GUARD_TABLE", tmp_path / "guard-cases.md")).write_text(table + "\n")
+    failed = [f"{r} {c}: {p}" for r, c, o, p in rows if p]
+    assert not failed, "\n" + "\n".join(failed) + "\n\n" + table
