@@ -157,7 +157,8 @@ section releases; for r in "$dir"/releases/*; do [ -e "$r" ] && printf '%s\n' "$
 section history; tail -n 50 "$dir/history.jsonl" 2>/dev/null || true
 section guard; show "$dir/.guard/state"
 section guard-acting; show "$dir/.guard/acting"
-section clock; date +%s
+# The robot's clock, for the guard's deadline: only when one is armed (a fork otherwise saved)
+if [ -e "$dir/.guard/state" ] || [ -e "$dir/.guard/acting" ]; then section clock; date +%s; fi
 section boot; show /proc/sys/kernel/random/boot_id
 if [ "$mode" = switch ]; then
   for r in "$dir"/releases/*; do [ -r "$r/manifest.json" ] && { section "manifest ${r##*/}"; show "$r/manifest.json"; }; done

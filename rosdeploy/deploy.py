@@ -104,6 +104,8 @@ class RobotRun:
     def open(self) -> None:
         with self.step("connect"):
             self.t = self.ctx.connect(self.host, self.ctx.ssh)
+            if hasattr(self.t, "reconnect"):
+                self.t.reconnect = False    # lost mid-deploy: the robot is its guard's, not a new connection's
 
     def close(self) -> None:
         if self.t is not None:

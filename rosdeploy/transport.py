@@ -104,6 +104,9 @@ class SSHTransport:
         self.host = host
         self.options = options
         self._conn = self._connection(config or fabric_config(options))
+        # False: a dropped connection is not opened again by the next command (a deploy
+        # that lost its robot mid-step must not carry on over a new one)
+        self.reconnect = True
 
     def _connection(self, config: Config) -> Connection:
         kwargs: dict = {}
@@ -155,6 +158,8 @@ class SSHTransport:
     def run(self, command: Command) -> Result:
         """Run one command; a non-zero exit is a Result, not an exception (see `check`)."""
         if not self._conn.is_connected:
+            if not self.reconnect and self._conn.transport is not None:
+                raise ConnectError(self.host.name, f"connection lost before `{command.display()}`")
             self.open()
         started = time.monotonic()
         timeout = command.timeout or self.options.command_timeout
