@@ -368,7 +368,7 @@ def apply_host(ctx: RunContext, host: Host, release: RenderedRelease) -> HostRes
         run.lost = True
         if run.locked:    # it got as far as the lock: say where it was lost, and what happens now
             return run.result(UNREACHABLE, new_release=release.release_id,
-                              reason=f"connection lost during {run.doing} ({exc.detail}){run.guard_note()}")
+                              reason=f"connection lost during {run.doing}{run.guard_note()} ({exc.detail})")
         return run.result(UNREACHABLE, new_release=release.release_id, reason=str(exc))
     except RemoteError as exc:
         return run.result(FAILED, new_release=release.release_id, reason=str(exc))

@@ -236,3 +236,72 @@ def test_the_guard_releases_a_lock_left_before_anything_started(tmp_path: Path) 
     assert entry["reason"].startswith("controller lost")
     assert not (tmp_path / "r/demo/.lock").exists() and not (g / "state").exists() and not (g / "acting").exists()
     assert "rm -f rosdeploy-guard-demo" in (tmp_path / "docker.log").read_text()
+
+
+# ------------------------------------------------------------------ the controller's side
+
+class Recorder:
+    """A transport that records each command's label and answers with a fixed exit code."""
+
+    def __init__(self, exited: int = 0, stderr: str = "") -> None:
+        self.calls: list[commands.Command] = []
+        self.exited, self.stderr = exited, stderr
+
+    def run(self, command: commands.Command):
+        from rosdeploy.transport import Result
+        self.calls.append(command)
+        return Result(command.label, "", self.stderr, self.exited, 0.0)
+
+    def close(self) -> None:
+        pass
+
+
+def robot_run(transport: Recorder, guard_mode: str = "revert"):
+    import threading
+
+    from rosdeploy import deploy
+    from rosdeploy.model import FleetSpec, Host, RollbackPolicy, Service
+    spec = FleetSpec(path="f", project="demo", inventory="i", registry="r", version="1",
+                     services=(Service("driver", "img", "1"),), rollback=RollbackPolicy(guard=guard_mode))
+    ctx = deploy.RunContext(spec=spec, ssh=None, run_id="run-1", operator="me", cancel=threading.Event())
+    run = deploy.RobotRun(ctx, Host(name="r1", groups=("all",), vars={}, address="h"))
+    run.t = transport
+    return run
+
+
+def release():
+    from rosdeploy.model import RenderedFile, RenderedRelease
+    return RenderedRelease("r1", "demo", "1.1.0", (RenderedFile("compose.yml", "x"),), ("img:1.1.0",))
+
+
+def test_arming_sends_the_state_the_guard_needs() -> None:
+    run = robot_run(Recorder())
+    args = run.guard_arm(parse_state("\n@@current\nreleases/1.0.0-a\n@@end\n"), release())
+    state = guard.parse_guard(args[0])
+    assert (state.run, state.mode, state.target, state.previous) == ("run-1", "revert", release().release_id, "1.0.0-a")
+    assert int(args[1]) == 600 + 30           # before the start: the pull's timeout + the margin
+    assert args[2] == guard.GUARD_SCRIPT and args[3] == commands.UP_SCRIPT and args[-1] == "img:1.1.0"
+    assert run.rearm("start") == "run-1 120"  # from the start: health.timeout + the margin
+    assert "reverts to 1.0.0-a in ~120 s" in run.guard_note()
+    assert robot_run(Recorder(), "off").guard_arm(parse_state(""), release()) == ()
+
+
+def test_a_run_that_lost_its_robot_leaves_the_lock_to_the_guard() -> None:
+    transport = Recorder()
+    run = robot_run(transport)
+    run.guard_arm(parse_state(""), release())
+    run.locked, run.lost = True, True
+    run.close()
+    assert transport.calls == []              # no unlock: unlocking would disarm the guard
+    run.lost = False
+    run.close()
+    assert [c.label.split()[0] for c in transport.calls] == ["unlock"]
+
+
+def test_activation_after_the_guard_took_over_fails_and_switches_nothing() -> None:
+    from rosdeploy.errors import GuardTookOver
+    run = robot_run(Recorder(exited=6, stderr="the deploy guard on the robot took this run over"))
+    run.guard_arm(parse_state(""), release())
+    with pytest.raises(GuardTookOver, match="took this run over"):
+        run.activate("1.1.0-x", {"event": "deploy"})
+    assert run.t.calls[0].argv[-1] == "run-1" and not run.locked
