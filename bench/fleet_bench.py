@@ -4,7 +4,9 @@
 
 1. On the simulated fleet (`rosdeploy sim up`, reused when it runs), per round and
    per tool from clean robots: first deploy, no-op re-apply, upgrade 1.0.0 -> 1.1.0,
-   1.2.0-bad until rolled back and healthy, emergency rollback of the whole fleet.
+   1.2.0-bad until rolled back and healthy, emergency rollback of the whole fleet
+   (`--scenarios` selects some). Tools: rosdeploy, Ansible with the equal-work playbook
+   (bench/ansible/deploy.yml) and with the minimal one (bench/ansible/minimal.yml).
 2. Fan-out: N host sshd targets on 127.0.0.1:3001... (their docker is the host's
    engine); `rosdeploy status`, no-op `rosdeploy apply` and Ansible's no-op run.
 Prints the table of medians, checks the targets, writes bench/results/fleet-<date>.json
@@ -35,8 +37,8 @@ from fleetbench import ansible as ans  # noqa: E402
 from fleetbench import fanout as fan  # noqa: E402
 from fleetbench import report  # noqa: E402
 from fleetbench.proc import REPO, BenchError, Timed, check, log  # noqa: E402
-from fleetbench.scenarios import (BAD, FIRST, TOOLS, UPGRADE, Measure, SimBench, policy_vars,  # noqa: E402
-                                  render_versions)
+from fleetbench.scenarios import (BAD, FIRST, SCENARIOS, SSH_FLOOR, TOOLS, UPGRADE, Measure,  # noqa: E402
+                                  SimBench, policy_vars, render_versions)
 
 RESULTS_DIR = REPO / "bench" / "results"
 DOCS = REPO / "docs" / "benchmarks.md"
@@ -53,13 +55,22 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                    help="runs of Ansible's fan-out no-op per N (about 5 minutes at N=100 on 2 cores)")
     p.add_argument("--fleet", type=Path, default=REPO / "playbooks" / "demo.yml", help="the demo fleet file")
     p.add_argument("--skip-fleet", action="store_true", help="only the fan-out part")
-    p.add_argument("--tools", default="rosdeploy,ansible", help="which tools' rounds to run on the sim fleet")
+    p.add_argument("--tools", default="rosdeploy,ansible,ansible-minimal",
+                   help="which tools' rounds to run on the sim fleet (ansible: the equal-work playbook "
+                        "bench/ansible/deploy.yml; ansible-minimal: bench/ansible/minimal.yml)")
+    p.add_argument("--scenarios", default=",".join(SCENARIOS),
+                   help="which sim fleet scenarios to measure, e.g. noop,upgrade (the ones before the last "
+                        "selected still run, untimed, to bring the robots there). A selection writes "
+                        "bench/results/fleet-<date>-<scenarios>.json and leaves docs/benchmarks.md alone")
     p.add_argument("--retries", type=int, default=1,
                    help="times a failed round is run again (the failure is kept in the results)")
     p.add_argument("--no-write", action="store_true", help="print only; leave docs/ and bench/results/ alone")
     args = p.parse_args(argv)
     args.sizes = sorted({int(n) for n in args.fanout.split(",") if n.strip()})
     args.tools = [t for t in TOOLS if t in args.tools.split(",")]
+    args.scenarios = [s for s in SCENARIOS if s in args.scenarios.split(",")]
+    if not args.scenarios:
+        p.error(f"--scenarios: choose from {','.join(SCENARIOS)}")
     if args.runs < 1 or args.robots < 1 or any(n < 1 for n in args.sizes):
         p.error("--runs, --robots and every --fanout size must be at least 1")
     return args
@@ -114,29 +125,58 @@ def sim_bench(args: argparse.Namespace, raw: dict[str, Any], work: Path, playboo
     return SimBench(fleet=args.fleet, inventory=fleet.inventory, robots=tuple(r.name for r in robots),
                     project=spec.project, services=tuple(services),
                     registry_robot=fleet.registry_robot, runner=ans.Ansible(playbook, inventory, work),
-                    extra=extra, env={"ROSDEPLOY_RUNS_DIR": str(work / "runs")})
+                    extra=extra, env={"ROSDEPLOY_RUNS_DIR": str(work / "runs")},
+                    ssh=tuple(ssh_argv(r.host, r.ssh_port, fleet.key_file, fleet.known_hosts) for r in robots))
 
 
-def run_fleet(bench: SimBench, tools: list[str], runs: int, retries: int,
-              discarded: list[dict[str, str]]) -> dict[str, list[dict[str, Measure]]]:
+def ssh_argv(host: str, port: int, key_file: Path, known_hosts: Path) -> tuple[str, ...]:
+    """`ssh robot@host true` with the sim's key and known_hosts: the floor of any SSH tool."""
+    return ("ssh", "-i", str(key_file), "-p", str(port), "-o", "BatchMode=yes", "-o", "IdentitiesOnly=yes",
+            "-o", f"UserKnownHostsFile={known_hosts}", "-o", "StrictHostKeyChecking=yes", f"robot@{host}", "true")
+
+
+def run_fleet(bench: SimBench, tools: list[str], runs: int, retries: int, discarded: list[dict[str, str]],
+              scenarios: Sequence[str] = SCENARIOS) -> dict[str, list[dict[str, Measure]]]:
     rounds: dict[str, list[dict[str, Measure]]] = {tool: [] for tool in tools}
     for number in range(runs):
         order = tools if number % 2 == 0 else tools[::-1]   # spread any drift evenly
+        if "noop" in scenarios:
+            floor = ssh_floor(bench)
+            rounds.setdefault(SSH_FLOOR, []).append({"noop": floor})
+            log(f"round {number + 1}/{runs}: parallel `ssh true` floor {floor.seconds:.2f}s")
         for tool in order:
             log(f"round {number + 1}/{runs}: {tool}")
-            got = one_round(bench, tool, retries, discarded)
+            got = one_round(bench, tool, retries, discarded, scenarios)
             rounds[tool].append(got)
             log("  " + ", ".join(f"{k} {m.seconds:.2f}s" for k, m in got.items()))
     return rounds
 
 
-def one_round(bench: SimBench, tool: str, retries: int, discarded: list[dict[str, str]]) -> dict[str, Measure]:
+def ssh_floor(bench: SimBench) -> Measure:
+    """Wall time of `ssh robot true` to every robot at once: what no SSH tool can go below
+    (fresh connections, as rosdeploy's apply opens them). Measured in the same run as the
+    tools, so the no-op's overhead above it is read on one machine state."""
+    import subprocess
+    import time
+
+    started = time.monotonic()
+    procs = [subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.PIPE) for argv in bench.ssh]
+    failed = [p.args[-2] for p in procs if p.wait(timeout=60) != 0]
+    seconds = time.monotonic() - started
+    if failed:
+        raise BenchError(f"ssh floor: `ssh true` failed on {failed}")
+    return Measure(seconds)
+
+
+def one_round(bench: SimBench, tool: str, retries: int, discarded: list[dict[str, str]],
+              scenarios: Sequence[str]) -> dict[str, Measure]:
     """A round whose result check failed is run again (at most `retries` times) and the
     failure is kept in the results: on a shared machine, another user's tests may reset
     the sim robots in the middle of a round."""
     for attempt in range(retries + 1):
         try:
-            return TOOLS[tool](bench)
+            return TOOLS[tool](bench, scenarios)
         except BenchError as exc:
             if attempt == retries:
                 raise
@@ -161,9 +201,9 @@ def run_fanout(args: argparse.Namespace, raw: dict[str, Any], work: Path, playbo
         log(f"fan-out release {release} deployed to t001 and copied to every target")
         for n in args.sizes:
             for _ in range(args.runs):
-                measure(times["status_first"], n, lambda: fan.rosdeploy_status(setup, n, held=False))
-                measure(times["status"], n, lambda: fan.rosdeploy_status(setup, n, held=True))
-                measure(times["rosdeploy_noop"], n, lambda: fan.rosdeploy_noop(setup, n))
+                measure(times["status_first"], n, lambda n=n: fan.rosdeploy_status(setup, n, held=False))
+                measure(times["status"], n, lambda n=n: fan.rosdeploy_status(setup, n, held=True))
+                measure(times["rosdeploy_noop"], n, lambda n=n: fan.rosdeploy_noop(setup, n))
             log(f"  N={n}: status {_secs(times['status_first'][n])} connecting, {_secs(times['status'][n])} "
                 f"held, no-op {_secs(times['rosdeploy_noop'][n])}")
         runner = ans.Ansible(playbook, fan.ansible_inventory(setup), work)
@@ -172,7 +212,7 @@ def run_fanout(args: argparse.Namespace, raw: dict[str, Any], work: Path, playbo
         fan.ansible_deploy_first_target(setup, runner, extra)
         for n in args.sizes:
             for _ in range(args.ansible_fanout_runs):
-                measure(times["ansible_noop"], n, lambda: fan.ansible_noop(setup, runner, extra, n))
+                measure(times["ansible_noop"], n, lambda n=n: fan.ansible_noop(setup, runner, extra, n))
             log(f"  N={n}: Ansible no-op {_secs(times['ansible_noop'][n])}")
     finally:
         fan.teardown(farm)
@@ -230,7 +270,9 @@ def with_goals(results: dict[str, Any]) -> dict[str, Any]:
     return {**results, "goals": [{**g.__dict__, "met": g.met} for g in goals]}
 
 
-def publish(results: dict[str, Any], write: bool) -> None:
+def publish(results: dict[str, Any], write: bool, suffix: str = "") -> None:
+    """Print the tables; with `write`, save the JSON, and (unless `suffix` marks a scenario
+    selection) replace the docs' latest-run block."""
     print(report.text_table(report.table_rows(results), report.HEADER))
     print()
     for line in report.goal_lines(results):
@@ -241,9 +283,10 @@ def publish(results: dict[str, Any], write: bool) -> None:
     if results.get("fleet"):
         print("\nrosdeploy, median seconds per robot and step:\n" + report.steps_table(results))
     if write:
-        path = report.save_json(results, RESULTS_DIR)
-        report.write_docs(DOCS, report.docs_block(results, str(path.relative_to(REPO))))
-        log(f"wrote {path.relative_to(REPO)} and {DOCS.relative_to(REPO)}")
+        path = report.save_json(results, RESULTS_DIR, suffix)
+        if not suffix:
+            report.write_docs(DOCS, report.docs_block(results, str(path.relative_to(REPO))))
+        log(f"wrote {path.relative_to(REPO)}" + ("" if suffix else f" and {DOCS.relative_to(REPO)}"))
 
 
 def stop_on_sigterm(_signum: int, _frame: Any) -> None:
@@ -272,7 +315,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rounds, fan_raw, discarded = {}, {}, []
         if not args.skip_fleet:
             rounds = run_fleet(sim_bench(args, raw, work, playbook), args.tools, args.runs, args.retries,
-                               discarded)
+                               discarded, args.scenarios)
         fanout_error = None
         if args.sizes:
             try:
@@ -283,9 +326,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         fan_raw = {name: series for name, series in fan_raw.items() if series}
         results = build_results(args, argv, rounds, fan_raw, playbook, load_start)
         results.update(discarded_rounds=discarded, fanout_error=fanout_error)
-        if not args.no_write:
+        partial = args.scenarios != list(SCENARIOS)
+        if not args.no_write and not partial:
             report.carry_over(results, RESULTS_DIR)
-        publish(with_goals(results), not args.no_write)
+        publish(with_goals(results), not args.no_write, suffix="-" + "-".join(args.scenarios) if partial else "")
         if fanout_error:
             return 1
     except BenchError as exc:

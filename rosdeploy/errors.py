@@ -13,6 +13,7 @@ EXIT_INTERNAL = 1      # a bug in rosdeploy: traceback goes to the run log
 EXIT_INPUT = 2         # bad inventory, fleet file, template, vault, usage: nothing touched
 EXIT_PARTIAL = 3       # some robots failed, rolled back or were unreachable
 EXIT_ABORTED = 4       # a rollout stopped on max_fail (fleet-level rollback may have run)
+EXIT_DECLINED = 5      # the operator answered no at the confirmation: nothing was done
 EXIT_INTERRUPTED = 130
 
 

@@ -12,6 +12,7 @@ so the key reference in the README (The fleet file) and the code read the same.
 from __future__ import annotations
 
 import difflib
+import math
 import os
 import re
 import shlex
@@ -43,9 +44,10 @@ _DOMAIN = r"(?:localhost|[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-9
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
 REGISTRY_RE = re.compile(rf"{_DOMAIN}(?:/{_COMPONENT})*")
 REPOSITORY_RE = re.compile(rf"{_COMPONENT}(?:/{_COMPONENT})*")
-_DURATION_PART = re.compile(r"(\d+(?:\.\d+)?)(ms|h|m|s)")
-_SIZE_RE = re.compile(r"(\d+(?:\.\d+)?)([kmg])b?", re.IGNORECASE)
+_DURATION_PART = re.compile(r"([0-9]+(?:\.[0-9]+)?)(ms|h|m|s)")   # ASCII digits only: int("²") fails
+_SIZE_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)([kmg])b?", re.IGNORECASE)
 _UNITS = {"ms": 0.001, "s": 1, "m": 60, "h": 3600}
+_SECRET_ENV_REF = re.compile(r"\$\{?ROSDEPLOY_VAULT_PASSWORD")
 _CONTROL = {"\n": "a newline", "\r": "a carriage return", "\0": "a NUL byte"}
 
 # rosdeploy sets these per robot (checklist item 8): a fleet file must not hard-code them.
@@ -77,7 +79,7 @@ def parse_duration(value: Any) -> float:
         seconds = float(value)
     else:
         text = str(value).strip()
-        if re.fullmatch(r"\d+(\.\d+)?", text):
+        if re.fullmatch(r"[0-9]+(\.[0-9]+)?", text):
             text += "s"
         parts = _DURATION_PART.findall(text)
         if not parts or "".join(n + u for n, u in parts) != text:
@@ -99,7 +101,7 @@ def size_bytes(text: str | int) -> int:
         return text
     match = _SIZE_RE.fullmatch(str(text).strip())
     if not match:
-        if str(text).strip().isdigit():
+        if re.fullmatch(r"[0-9]+", str(text).strip()):
             return int(str(text).strip())
         raise ValueError(text)
     return int(float(match.group(1)) * 1024 ** ("kmg".index(match.group(2).lower()) + 1))
@@ -173,6 +175,8 @@ class Reader:
         """A path on this machine: ~ and $VARS expanded, relative to the fleet file's folder."""
         if not isinstance(value, str) or not value.strip():
             return self.error(kp, f"must be a path (a string); got {_kind(value)}")
+        if _SECRET_ENV_REF.search(value):
+            return self.error(kp, "a path may not use the vault password variables: they are secrets")
         expanded = os.path.expandvars(value)
         unset = re.search(r"\$\{?([A-Za-z_][A-Za-z0-9_]*)", expanded)
         if unset:
@@ -402,7 +406,7 @@ def _wave(r: Reader, kp: KeyPath, value: Any) -> Any:
     """A robot count (1, 5) or a share of the targets ("10%")."""
     if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
         return value
-    if isinstance(value, str) and re.fullmatch(r"\d{1,3}%", value) and 0 < int(value[:-1]) <= 100:
+    if isinstance(value, str) and re.fullmatch(r"[0-9]{1,3}%", value) and 0 < int(value[:-1]) <= 100:
         return value
     return r.error(kp, f'must be a robot count (1, 5) or a percentage of the targets ("10%"); got {_kind(value)}')
 
@@ -451,6 +455,77 @@ def _compose_extra(r: Reader, kp: KeyPath, value: Any) -> Any:
     return value
 
 
+# ------------------------------------------- issue 18: refusals (new converters)
+
+DOCKER_MIN_MEMORY = 6 * 1024 * 1024    # dockerd refuses a smaller memory limit
+COMPOSE_SCHEMA = Path(__file__).parent / "schemas" / "compose_spec.json"   # see schemas/README.md
+
+
+def _memory(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """A memory limit: a size Docker accepts (`0m` would be refused on the robot, mid-deploy)."""
+    value = _size(r, kp, value)
+    if value is not BAD and size_bytes(value) < DOCKER_MIN_MEMORY:
+        return r.error(kp, f"{value!r} is below Docker's minimum memory limit of 6m: give the service "
+                           "what it needs, e.g. 256m")
+    return value
+
+
+def _cpus(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """A CPU limit: a finite number above 0 (`.inf` would be written as `inf` for compose)."""
+    value = _positive(r, kp, value)
+    if value is not BAD and not math.isfinite(value):
+        return r.error(kp, f"must be a finite number of CPUs, e.g. 1.5; got {value}")
+    return value
+
+
+def _deploy_root(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """deploy_root: the remote-path pattern (no shell metacharacters), and no `..` anywhere."""
+    value = _string(REMOTE_PATH_RE, "path on the robot (absolute or under ~)")(r, kp, value)
+    if value is not BAD and ".." in value.split("/"):
+        return r.error(kp, f"{value!r} contains `..`: releases would land outside the folder it names; "
+                           "write the folder itself, e.g. ~/rosdeploy or /opt/rosdeploy")
+    return value
+
+
+def _compose_passthrough(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """`compose:`: not a key rosdeploy renders (_compose_extra), and valid per the Compose schema."""
+    value = _compose_extra(r, kp, value)
+    if isinstance(value, dict):
+        _compose_schema(r, kp, {k: v for k, v in value.items() if k not in MANAGED_COMPOSE})
+    return value
+
+
+def _compose_schema(r: Reader, kp: KeyPath, extra: dict) -> None:
+    from rosdeploy.suggest import did_you_mean
+    validator = _compose_validator()
+    known = validator.schema["definitions"]["service"]["properties"]
+    checked = {}
+    for key, item in extra.items():
+        if isinstance(key, str) and (key in known or key.startswith("x-")):
+            checked[key] = item
+        else:
+            hint = did_you_mean(key, [k for k in known if k not in MANAGED_COMPOSE])
+            r.error(kp + (key,), f"unknown compose service key {key!r}: {hint or 'see the Compose specification'}"
+                                 " (Compose v1 would refuse the file)")
+    for err in sorted(validator.iter_errors({"services": {"s": checked}}), key=lambda e: list(map(str, e.path))):
+        path = tuple(err.path)[2:]
+        r.error(kp + path, f"not valid for compose: {err.message[:200]}")
+
+
+_VALIDATOR: list[Any] = []
+
+
+def _compose_validator() -> Any:
+    """Built once per process (the schema is 800 lines); jsonschema imported only when `compose:` is used."""
+    if not _VALIDATOR:
+        import json
+
+        import jsonschema  # type: ignore[import-untyped]  # no stubs; used through Any
+        schema = json.loads(COMPOSE_SCHEMA.read_text(encoding="utf-8"))
+        _VALIDATOR.append(jsonschema.Draft201909Validator(schema))
+    return _VALIDATOR[0]
+
+
 _HEALTHCHECK = {"test": _health_test, "interval": _duration, "timeout": _duration,
                 "retries": _integer(1), "start_period": _duration}
 _TOPIC = {"name": _string(TOPIC_RE, "ROS topic name (absolute, e.g. /joint_states)"), "min_rate": _positive}
@@ -461,14 +536,15 @@ SERVICE = {
     "devices": _listof(_string(DEVICE_RE, "device name"), "logical device names"),
     "volumes": _listof(_mount, "bind mounts"),
     "gpu": _boolean, "restart": _restart,
-    "resources": _section({"memory": _size, "cpus": _positive}),
+    "resources": _section({"memory": _memory, "cpus": _cpus}),
     "healthcheck": _healthcheck,
     "depends_on": _listof(_string(NAME_RE, "service name"), "service names"),
     "topics": _listof(_topic, "topics"),
     "user": _string(USER_RE, "user (name, uid or uid:gid)"),
     "privileged": _boolean, "allow_privileged": _boolean,
     "profiles": _listof(_string(NAME_RE, "profile name"), "profile names"),
-    "compose": _compose_extra,
+    "compose": _compose_passthrough,
+    "compose_interpolate": _boolean,
 }
 SECTIONS: dict[str, Mapping[str, Convert]] = {
     "ssh": {"known_hosts": Reader.local_path, "config": Reader.local_path,
@@ -490,7 +566,7 @@ TOP = {
     "registry": _registry,
     "version": _tag,
     "templates": Reader.local_path,
-    "deploy_root": _string(REMOTE_PATH_RE, "path on the robot (absolute or under ~)"),
+    "deploy_root": _deploy_root,
     **{name: _section(schema) for name, schema in SECTIONS.items()},
     "services": _named(NAME_RE, "service", _section(SERVICE, required=("image",))),
     "vars": _named(ENV_RE, "template variable", lambda r, kp, v: v),
@@ -525,7 +601,7 @@ def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[st
     out: dict[str, Any] = {}
     if inventory:
         out["inventory"] = os.path.abspath(Path(os.path.expandvars(inventory)).expanduser())
-        if not Path(out["inventory"]).exists():
+        if not _exists(out["inventory"]):
             r.problems.append(Problem("--inventory", None, "", f"{inventory} does not exist: fix the -i path"))
     if version is not None:
         cli = Reader(Doc("--version", None))
@@ -536,13 +612,27 @@ def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[st
 
 def _check_paths(r: Reader, top: dict, inventory_overridden: bool) -> None:
     inv = top.get("inventory")
-    if not inventory_overridden and isinstance(inv, str) and not Path(inv).exists():
-        r.error(("inventory",), f"the inventory {inv} does not exist: fix the path (relative to "
-                                "the fleet file) or pass -i")
+    if not inventory_overridden and isinstance(inv, str) and not _exists(inv):
+        r.error(("inventory",), f"the inventory {_as_written(r, 'inventory', inv)} does not exist: fix the path "
+                                "(relative to the fleet file) or pass -i")
     tpl = top.get("templates")
-    if isinstance(tpl, str) and not Path(tpl).is_dir():
-        r.error(("templates",), f"{tpl} is not a directory: point `templates:` at a folder of *.j2 overrides "
-                                "(relative to the fleet file) or remove the key")
+    if isinstance(tpl, str) and not _exists(tpl, folder=True):
+        r.error(("templates",), f"{_as_written(r, 'templates', tpl)} is not a directory: point `templates:` at a "
+                                "folder of *.j2 overrides (relative to the fleet file) or remove the key")
+
+
+def _exists(path: str, folder: bool = False) -> bool:
+    """Path.exists/is_dir, where a name too long for the filesystem is "no" rather than an OSError."""
+    try:
+        return Path(path).is_dir() if folder else Path(path).exists()
+    except OSError:
+        return False
+
+
+def _as_written(r: Reader, key: str, expanded: str) -> str:
+    """A path as the file wrote it when it used $VARS: an environment value never reaches a message."""
+    written = str(r.doc.data.get(key, expanded))
+    return repr(written) if "$" in written else expanded
 
 
 def _check_services(r: Reader, top: dict) -> None:
@@ -675,9 +765,10 @@ def _service(name: str, d: dict, version: str) -> Service:
         depends_on=d.get("depends_on", ()), topics=d.get("topics", ()), user=d.get("user"),
         privileged=d.get("privileged", False), allow_privileged=d.get("allow_privileged", False),
         profiles=d.get("profiles", ()), extra=frozen_map(d.get("compose")),
+        compose_interpolate=d.get("compose_interpolate", False),
     )
 
 
 def problem_at(spec: FleetSpec, keypath: KeyPath, message: str, **kw: Any) -> Problem:
     """A Problem located in the fleet file by key path (for checks that run after loading)."""
-    return Doc(spec.path, None, dict(spec.lines)).problem(keypath, message, **kw)
+    return Doc(spec.path, None, spec.lines).problem(keypath, message, **kw)

@@ -1,6 +1,6 @@
 """The plain values that flow between rosdeploy's stages.
 
-    inventory.py -> Inventory/Host      fleet.py -> FleetSpec
+    inventory/ -> Inventory/Host         fleet.py -> FleetSpec
     render.py (Host, FleetSpec) -> RenderedRelease
     deploy.py / rollout.py -> HostResult -> FleetResult
 
@@ -44,7 +44,8 @@ class Host:
     address: str                            # ansible_host, or the name
     port: int = 22                          # ansible_port
     user: str | None = None                 # ansible_user (None: ssh config / local user)
-    key_file: str | None = None             # ansible_ssh_private_key_file
+    key_file: str | None = None             # ansible_ssh_private_key_file, absolute
+    key_file_var: str = ""                  # where key_file was set: "var (file:line)", for messages
     ros_domain_id: int = 0
     devices: Mapping[str, str] = field(default_factory=frozen_map)   # logical name -> path on robot
     udev: tuple[UdevDevice, ...] = ()
@@ -94,6 +95,7 @@ class Service:
     allow_privileged: bool = False          # explicit opt-in the check rule wants
     profiles: tuple[str, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=frozen_map)   # passed through to compose verbatim
+    compose_interpolate: bool = False       # `$` in `extra` is compose interpolation (else written `$$`)
 
 
 @dataclass(frozen=True)
@@ -178,6 +180,9 @@ class RenderedRelease:
     files: tuple[RenderedFile, ...]     # sorted by name
     images: tuple[str, ...]             # full refs to pull, sorted, e.g. "registry.local:5000/demo/driver:1.0.0"
     secret_values: frozenset[str] = frozenset()
+    # compose.yml as data when the built-in template wrote it (rosdeploy.compose_data), so the
+    # checks need not parse it back; None for a user's own compose template. Not part of the digest.
+    compose_data: Any = field(default=None, compare=False, repr=False)
 
     @property
     def digest(self) -> str:

@@ -17,16 +17,23 @@ MASK = "********"
 
 class Output:
     def __init__(self, stdout: TextIO | None = None, stderr: TextIO | None = None,
-                 as_json: bool = False, color: bool | None = None) -> None:
+                 as_json: bool = False, color: bool | str | None = None) -> None:
+        """`color`: "auto" (or None), "always", "never", or a bool for both streams."""
         self.stdout = stdout or sys.stdout
         self.stderr = stderr or sys.stderr
         self.as_json = as_json
-        tty = hasattr(self.stdout, "isatty") and self.stdout.isatty()
-        self.color = tty and not os.environ.get("NO_COLOR") if color is None else color
-        self.interactive = tty and not as_json
+        self.color_out = use_color(self.stdout, color)
+        self.color_err = use_color(self.stderr, color)
+        self.interactive = _isatty(self.stdout) and not as_json
+        self.documented = False          # the one JSON document of this run was written
         self._secrets: set[str] = set()
         self._lock = threading.Lock()   # progress lines come from many robot threads
         self._live: list[str] = []      # lines drawn at the bottom of the terminal (see live)
+
+    @property
+    def color(self) -> bool:
+        """Whether `line()`'s stream is painted (stderr in --json mode, else stdout)."""
+        return self.color_err if self.as_json else self.color_out
 
     # --- secrets --------------------------------------------------------------
     def mask(self, secrets: Iterable[str]) -> None:
@@ -45,15 +52,20 @@ class Output:
         stream = self.stderr if self.as_json else self.stdout
         self._write(stream, text)
 
+    def note(self, text: str) -> None:
+        """Plain text on stderr, whatever the mode (e.g. a usage line above its error)."""
+        self._write(self.stderr, text)
+
     def error(self, text: str) -> None:
-        self._write(self.stderr, self.paint(text, "red"))
+        self._write(self.stderr, _paint(text, "red", self.color_err))
 
     def warn(self, text: str) -> None:
-        self._write(self.stderr, self.paint(text, "yellow"))
+        self._write(self.stderr, _paint(text, "yellow", self.color_err))
 
     def document(self, data: Any) -> None:
         """The one JSON document of a --json run."""
         self._write(self.stdout, json.dumps(data, indent=2, sort_keys=True, default=str))
+        self.documented = True
 
     def table(self, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
         rows = [[str(c) for c in row] for row in rows]
@@ -64,10 +76,8 @@ class Output:
             self.line(fmt.format(*row).rstrip())
 
     def paint(self, text: str, style: str) -> str:
-        if not self.color:
-            return text
-        codes = {"red": "31", "green": "32", "yellow": "33", "bold": "1", "dim": "2"}
-        return f"\033[{codes[style]}m{text}\033[0m"
+        """`text` styled for `line()` (its stream's colour decision; error/warn paint their own)."""
+        return _paint(text, style, self.color)
 
     def live(self, lines: Sequence[str]) -> None:
         """Redraw the region at the bottom of the terminal with `lines` (each shorter than the
@@ -94,6 +104,33 @@ class Output:
             stream.write(self.masked(text) + "\n")
             stream.flush()
             self._draw_live()
+
+
+_STYLES = {"red": "31", "green": "32", "yellow": "33", "bold": "1", "dim": "2"}
+
+
+def _paint(text: str, style: str, color: bool) -> str:
+    return f"\033[{_STYLES[style]}m{text}\033[0m" if color else text
+
+
+def _isatty(stream: TextIO) -> bool:
+    return hasattr(stream, "isatty") and stream.isatty()
+
+
+def use_color(stream: TextIO, mode: bool | str | None = "auto") -> bool:
+    """Colour for one stream: --color always/never wins; else NO_COLOR (any value) turns it off,
+    FORCE_COLOR (any value but empty or 0) on, and otherwise only a terminal gets it. NO_COLOR
+    beats FORCE_COLOR, as in CPython's own REPL and tracebacks: escape codes in a log file are
+    the worse mistake."""
+    if isinstance(mode, bool):
+        return mode
+    if mode in ("always", "never"):
+        return mode == "always"
+    if os.environ.get("NO_COLOR"):
+        return False
+    if os.environ.get("FORCE_COLOR", "") not in ("", "0"):
+        return True
+    return _isatty(stream)
 
 
 def confirm(out: Output, question: str) -> bool:

@@ -4,85 +4,95 @@
     robot*  site_?    shell globs (case-sensitive, like Ansible)
     ~amr-[ns]\\d       a regular expression, matched from the start of the name
     all  *            every host
-    a:b  a,b          union
+    a:b  a,b          union; with a comma present, Ansible splits on commas only (`a:b,c` is `a:b` and `c`)
     a:&b              intersection
     a:!b              exclusion
-    site[0]  site[0:2]  subscripts of a group, end inclusive (Ansible's)
+    site[0]  site[1:3]  subscripts of a group in Ansible's host order for it, end inclusive
 
 Like Ansible, unions are applied first, then intersections, then exclusions,
 whatever order they were written in, and a pattern made only of `&`/`!` terms
-starts from `all`. Unlike Ansible, a term that matches no host and no group is
-an error rather than a warning: a misspelt exclusion (`all:!amr-n9`) would
-otherwise deploy to the very robot the operator meant to leave out.
+starts from `all`. A union or intersection term that matches no host and no
+group is a warning, as in Ansible (`web:nomatch` selects web). Two places are
+stricter: an *exclusion* that matches nothing is an error (a misspelt
+`all:!amr-n9` would deploy to the very robot the operator meant to leave out),
+and so is a pattern that selects no robot at all (Ansible runs nothing and
+exits 0). `localhost` is not Ansible's implicit localhost: rosdeploy deploys
+over SSH to inventory hosts only, so an absent localhost is refused with how to
+add it.
 """
 from __future__ import annotations
 
-import difflib
 import fnmatch
 import re
 from typing import Callable, Mapping, Sequence
 
+from rosdeploy import suggest
 from rosdeploy.errors import InventoryError, Problem
 
 _GLOB_CHARS = frozenset("*?[")
 # Ansible's subscript: `group[3]`, `group[-1]`, `group[1:4]`, `group[2:]`.
-_SUBSCRIPT = re.compile(r"^(?P<base>[^~].*?)\[(?P<start>-?\d+)(?::(?P<end>-?\d*))?\]$")
+_SUBSCRIPT = re.compile(r"^(?P<base>.+)\[(?:(?P<index>-?[0-9]+)|(?P<start>[0-9]+):(?P<end>[0-9]*))\]$")
+# Ansible's split on ':' keeps a bracketed expression whole (`web[0:2]:db`).
+_TERM = re.compile(r"(?:[^\s:\[\]]|\[[^\]]*\])+")
+_HOST_PORT = re.compile(r"[^:\[\]\s]+:[0-9]+")
+_LOCALHOST = ("localhost", "127.0.0.1", "::1")
 
 
 def select(pattern: str | None, hosts: Sequence[str], groups: Mapping[str, Sequence[str]],
-           where: str = "--limit") -> tuple[str, ...]:
+           where: str = "--limit", warnings: list[Problem] | None = None) -> tuple[str, ...]:
     """Names of the hosts `pattern` selects, in inventory order.
 
     `hosts` is every host name in inventory order; `groups` maps each group name
-    to all of its hosts (descendant groups included). Raises InventoryError when
-    a term matches nothing or the whole pattern selects no host.
+    to all of its hosts (descendant groups included) in Ansible's order. Raises
+    InventoryError when an exclusion matches nothing or the whole pattern selects
+    no host; other unmatched terms go to `warnings`.
     """
     if pattern is None:
         return tuple(hosts)
     terms = split(pattern)
     if not terms:
         raise _error(where, f"pattern {pattern!r} is empty: give host or group names, e.g. 'site_north:!amr-n2'")
-    chosen = _evaluate(terms, hosts, groups, where)
+    unmatched: list[Problem] = []
+    chosen = _evaluate(terms, hosts, groups, where, unmatched)
+    if warnings is not None:
+        warnings.extend(unmatched)
     if not chosen:
-        raise _error(where, f"pattern {pattern!r} selects no robot: every term names something, but "
-                            "together (&, !, [n]) they leave nothing; loosen the pattern")
+        if any(term.strip("&!") in _LOCALHOST for term in terms) and not set(_LOCALHOST) & set(hosts):
+            raise _error(where, "localhost is not in the inventory: rosdeploy deploys over SSH to inventory "
+                                "hosts only (no implicit localhost as in Ansible); to target this machine, add "
+                                "it, e.g. `localhost: {ansible_host: 127.0.0.1}`")
+        why = "; ".join(p.message for p in unmatched) or "every term names something, but together (&, !, [n]) " \
+                                                         "they leave nothing; loosen the pattern"
+        raise _error(where, f"pattern {pattern!r} selects no robot: {why}")
     order = {name: i for i, name in enumerate(hosts)}
     return tuple(sorted(chosen, key=order.__getitem__))
 
 
 def split(pattern: str) -> list[str]:
-    """Terms of a pattern, split on ',' and on ':' outside brackets (so `web[0:2]` stays whole)."""
-    terms: list[str] = []
-    for part in pattern.split(","):
-        terms.extend(_split_colons(part))
-    return [t.strip() for t in terms if t.strip()]
-
-
-def _split_colons(part: str) -> list[str]:
-    out, depth, start = [], 0, 0
-    for i, char in enumerate(part):
-        if char == "[":
-            depth += 1
-        elif char == "]":
-            depth = max(0, depth - 1)
-        elif char == ":" and depth == 0:
-            out.append(part[start:i])
-            start = i + 1
-    out.append(part[start:])
-    return out
+    """Terms of a pattern, as Ansible splits it (split_host_pattern)."""
+    if "," in pattern:
+        parts = pattern.split(",")
+    elif _HOST_PORT.fullmatch(pattern.strip()):
+        parts = [pattern]   # `host:22` is one address, not two terms
+    else:
+        parts = _TERM.findall(pattern)
+    return [p.strip() for p in parts if p.strip()]
 
 
 def _evaluate(terms: list[str], hosts: Sequence[str], groups: Mapping[str, Sequence[str]],
-              where: str) -> set[str]:
+              where: str, unmatched: list[Problem]) -> set[str]:
     unions = [t for t in terms if t[0] not in "&!"]
     intersections = [t[1:] for t in terms if t[0] == "&"]
     exclusions = [t[1:] for t in terms if t[0] == "!"]
-    problems: list[Problem] = []
+    errors: list[Problem] = []
+    known = set(hosts)
 
-    def resolve(term: str) -> set[str]:
+    def resolve(term: str, strict: bool = False) -> set[str]:
+        if term in known:       # a plain host name is never read as a pattern (Ansible)
+            return {term}
         found = _match_term(term, hosts, groups, where)
         if found is None:
-            problems.append(_unmatched(term, hosts, groups, where))
+            (errors if strict else unmatched).append(_unmatched(term, hosts, groups, where, strict))
             return set()
         return found
 
@@ -92,17 +102,15 @@ def _evaluate(terms: list[str], hosts: Sequence[str], groups: Mapping[str, Seque
     for term in intersections:
         chosen &= resolve(term)
     for term in exclusions:
-        chosen -= resolve(term)
-    if problems:
-        raise InventoryError(problems)
+        chosen -= resolve(term, strict=True)
+    if errors:
+        raise InventoryError(errors)
     return chosen
 
 
 def _match_term(term: str, hosts: Sequence[str], groups: Mapping[str, Sequence[str]],
                 where: str) -> set[str] | None:
     """Hosts one term names, or None when it names no host and no group at all."""
-    if term in ("all", "*"):
-        return set(hosts)
     base, subscript = _split_subscript(term)
     matcher = _matcher(base, where)
     matched_groups = [g for g in groups if matcher(g)]
@@ -133,31 +141,35 @@ def _matcher(base: str, where: str) -> Callable[[str], bool]:
 
 
 def _split_subscript(term: str) -> tuple[str, tuple[int, int | None] | None]:
-    found = _SUBSCRIPT.match(term)
+    found = _SUBSCRIPT.match(term) if not term.startswith("~") else None
     if not found:
         return term, None
-    start = int(found["start"])
-    if found["end"] is None:
-        return found["base"], (start, start)
-    end = int(found["end"]) if found["end"] not in ("", None) else None
-    return found["base"], (start, end)
+    if found["index"] is not None:
+        return found["base"], (int(found["index"]), None)
+    return found["base"], (int(found["start"]), int(found["end"]) if found["end"] else -1)
 
 
 def _apply_subscript(members: list[str], subscript: tuple[int, int | None]) -> list[str]:
+    # Ansible's _apply_subscript, including its quirks: `[x:]` runs to the end, and an end
+    # of 0 (`[0:0]`, `[2:0]`) is read as "no end", i.e. the single host at x.
     start, end = subscript
-    if end == start:
-        return [members[start]] if -len(members) <= start < len(members) else []
-    return members[start:] if end is None else members[start:end + 1]
+    if end:
+        return members[start:(len(members) - 1 if end == -1 else end) + 1]
+    return [members[start]] if -len(members) <= start < len(members) else []
 
 
 def _dedupe(names: list[str]) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def _unmatched(term: str, hosts: Sequence[str], groups: Mapping[str, Sequence[str]], where: str) -> Problem:
-    close = difflib.get_close_matches(term, [*groups, *hosts], n=1, cutoff=0.7)
-    hint = f"did you mean {close[0]!r}?" if close else "check the spelling against the inventory"
-    return Problem(where, None, "", f"{term!r} matches no host or group: {hint}")
+def _unmatched(term: str, hosts: Sequence[str], groups: Mapping[str, Sequence[str]], where: str,
+               strict: bool) -> Problem:
+    hint = suggest.did_you_mean(term, [*groups, *hosts]) or "check the spelling against the inventory"
+    if strict:
+        return Problem(where, None, "", f"exclusion {term!r} matches no host or group: {hint} (an exclusion "
+                                        "that excludes nothing would deploy to the robots meant to be left out)")
+    return Problem(where, None, "", f"{term!r} matches no host or group, ignored (as Ansible does): {hint}",
+                   severity="warning")
 
 
 def _error(where: str, message: str) -> InventoryError:

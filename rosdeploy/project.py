@@ -2,18 +2,21 @@
 
     load_project(fleet) -> Project(spec, inventory)
     project.targets(limit) -> the robots a command acts on
-    validate(project, hosts) -> every problem that must stop a deploy
+    deployable(project, hosts) -> releases + warnings, or InputError with every error
+    findings(project, hosts) -> everything `check` reports; validate(...) -> what `validate` reports
 
-`validate` is the gate `deploy` runs before touching a robot: the inventory
-cross-checks (devices, secrets, domain IDs) plus every error-level rule of
-`check`, so nothing `check` calls an error can ever be deployed.
+`deployable` is the only way to get releases to write or deploy (`render`, `plan`, `apply`,
+`status`): it renders every robot and runs every rule of `check` on the result, and any
+error-level finding (a duplicate domain id, `privileged` without `allow_privileged`, the
+Docker socket mounted, a render error) stops the command before anything is written or
+touched. So a command cannot forget the validation `validate` and `check` run.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
-from rosdeploy.errors import Problem, RenderError
+from rosdeploy.errors import InputError, Problem, RenderError
 from rosdeploy.fleet import load_fleet
 from rosdeploy.inventory import Inventory, load_inventory
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
@@ -29,9 +32,10 @@ class Project:
     spec: FleetSpec
     inventory: Inventory
 
-    def targets(self, limit: str | None = None) -> tuple[Host, ...]:
-        """The robots `--limit` selects (all of them without one), in inventory order."""
-        return tuple(self.inventory.select(limit))
+    def targets(self, limit: str | None = None, warnings: list[Problem] | None = None) -> tuple[Host, ...]:
+        """The robots `--limit` selects (all of them without one), in inventory order; a term that
+        matches nothing is a warning appended to `warnings` (as in Ansible)."""
+        return tuple(self.inventory.select(limit, warnings))
 
     @property
     def secret_values(self) -> frozenset[str]:
@@ -42,14 +46,38 @@ class Project:
 # `checks` and `render` (Jinja2) are imported where they are used: an emergency rollback
 # loads the project but renders and checks nothing, and each command is a new process.
 def load_project(fleet_path: str, *, inventory: str | None = None, version: str | None = None,
-                 vault_password_file: str | None = None, prompt: Callable[[str], str] | None = None) -> Project:
-    """Load the fleet file, then its inventory (decrypting vault files with the password sources)."""
+                 vault_password_file: str | None = None, prompt: Callable[[str], str] | None = None,
+                 vault: Vault | None = None) -> Project:
+    """Load the fleet file, then its inventory (decrypting vault files with the password sources).
+
+    `vault`, when given (e.g. several --vault-id, see cli.vault.vault_from_args), replaces the
+    password file and prompt arguments."""
     spec = load_fleet(fleet_path, inventory=inventory, version=version)
-    vault = Vault(password_file=vault_password_file, prompt=prompt)
+    vault = vault or Vault(password_file=vault_password_file, prompt=prompt)
     return Project(spec, load_inventory(spec.inventory, vault=vault))
 
 
+def deployable(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
+    """Every robot's release and the input warnings, after every rule ran; InputError on any error."""
+    releases, problems = prepare(project, hosts)
+    problems = gate(problems)
+    errors = [p for p in problems if p.severity == "error"]
+    if errors:
+        raise InputError(errors)
+    return releases, problems
+
+
 def render_hosts(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
+    """`deployable` without the warnings (what `render` writes); kept under the name `render` calls."""
+    return deployable(project, hosts)[0], []
+
+
+def render_blockers(project: Project, hosts: Sequence[Host]) -> list[Problem]:
+    """Nothing left to report once render_hosts ran `deployable` (kept for the `render` command)."""
+    return []
+
+
+def _render_all(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
     """Render every robot whose inputs allow it; the problems are the render errors.
 
     A robot failing an input rule (a device or secret it lacks) is skipped: the rule
@@ -86,8 +114,9 @@ def _same_on(p: Problem, robots: list[str]) -> Problem:
 def prepare(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
     """Render every robot once and run every rule on the result: releases and findings, errors first."""
     from rosdeploy import checks
-    releases, problems = render_hosts(project, hosts)
-    return releases, sorted(problems + checks.run_checks(project, hosts, releases), key=checks.sort_key)
+    releases, problems = _render_all(project, hosts)
+    found = checks.run_checks(project.spec, hosts, releases, all_hosts=tuple(project.inventory.hosts.values()))
+    return releases, sorted(problems + found, key=checks.sort_key)
 
 
 def findings(project: Project, hosts: Sequence[Host]) -> list[Problem]:
@@ -102,13 +131,6 @@ def validate(project: Project, hosts: Sequence[Host]) -> list[Problem]:
 
 def gate(problems: Sequence[Problem]) -> list[Problem]:
     return [p for p in problems if p.severity == "error" or _is_input_rule(p)]
-
-
-def render_blockers(project: Project, hosts: Sequence[Host]) -> list[Problem]:
-    """Errors that keep some robot from being rendered at all (for `render`)."""
-    from rosdeploy import checks
-    input_rules = [r for r in checks.RULES.values() if r.scope == "host" and r.severity == "error"]
-    return checks.run_checks(project, hosts, {}, rules=input_rules)
 
 
 def _is_input_rule(p: Problem) -> bool:

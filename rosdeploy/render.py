@@ -13,6 +13,7 @@ syntax of the file it lands in.
 """
 from __future__ import annotations
 
+import ipaddress
 import json
 import re
 import traceback
@@ -24,9 +25,11 @@ from xml.sax.saxutils import escape as _xml_escape
 import jinja2
 import yaml
 
+from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError
-from rosdeploy.fleet import size_bytes
+from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
+from rosdeploy.sandbox import ContainedLoader, Sandbox, describe, render_value, value_template
 from rosdeploy.yamlsrc import Doc
 
 # rosdeploy/templates is a link to the repo's top-level templates/ in a checkout, and a real
@@ -47,13 +50,10 @@ RMW = {
     "cyclonedds": ("rmw_cyclonedds_cpp", "cyclonedds.xml", {"CYCLONEDDS_URI": "file:///cyclonedds.xml"}),
 }
 
-# Keys the built-in compose template writes for a service; `extra` may not repeat
-# them (a duplicate mapping key is a YAML error in Compose v2, a silent override in v1).
-RENDERED_SERVICE_KEYS = frozenset({
-    "image", "command", "environment", "volumes", "restart", "mem_limit", "cpus", "healthcheck",
-    "depends_on", "devices", "group_add", "user", "privileged", "profiles", "deploy", "labels",
-    "network_mode", "networks", "shm_size", "logging",
-})
+# Keys the built-in compose template writes for a service (fleet.MANAGED_COMPOSE is the one list);
+# `extra` may not repeat them (a duplicate mapping key is a YAML error in Compose v2, a silent
+# override in v1).
+RENDERED_SERVICE_KEYS = frozenset(MANAGED_COMPOSE)
 
 GPU_ENV = {"NVIDIA_VISIBLE_DEVICES": "all", "NVIDIA_DRIVER_CAPABILITIES": "compute,utility,video"}
 GPU_SHM_BYTES = 1 << 30          # the practices doc: ~1 GB of /dev/shm for GPU services
@@ -81,9 +81,9 @@ TUNABLES: dict[str, tuple[Any, Any, str]] = {
     # the containers of a release start together) then waits up to 3 s to discover it.
     "dds_initial_announcements": (15, _int_at_least(1), "a number of announcements"),
     "dds_initial_announcement_period_ms": (200, _int_at_least(1), "whole milliseconds"),
-    "dds_socket_buffer": ("10MB", lambda v: bool(re.fullmatch(r"\d+(\.\d+)?\s*([kKMG]i?)?B?", str(v))),
+    "dds_socket_buffer": ("10MB", lambda v: bool(re.fullmatch(r"[0-9]+(\.[0-9]+)?[ \t]*([kKMG]i?)?B?", str(v))),
                           "a size like 10MB or 8MiB"),
-    "logrotate_size": ("50M", lambda v: bool(re.fullmatch(r"\d+[kMG]?", str(v))), "a size like 50M"),
+    "logrotate_size": ("50M", lambda v: bool(re.fullmatch(r"[0-9]+[kMG]?", str(v))), "a size like 50M"),
     "logrotate_keep": (5, _int_at_least(0), "a number of rotated files"),
 }
 
@@ -94,9 +94,15 @@ class _Rejected(ValueError):
 
 # ------------------------------------------------------------------- filters
 
+_PLAIN = re.compile(r"[A-Za-z0-9 _./:@%+,=${}()*!?#&~^\[\]-]*")
+
+
 def yaml_str(value: Any) -> str:
     """A double-quoted YAML scalar that parses back to str(value), whatever it holds."""
-    text = json.dumps(str(value), ensure_ascii=False)   # JSON strings are YAML double-quoted scalars
+    text = str(value)
+    if _PLAIN.fullmatch(text):   # nothing to escape in a double-quoted scalar (the common case)
+        return f'"{text}"'
+    text = json.dumps(text, ensure_ascii=False)   # JSON strings are YAML double-quoted scalars
     return _YAML_UNSAFE.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
 
 
@@ -211,6 +217,7 @@ class ServiceView:
     volumes: tuple[str, ...]                # the user's bind mounts, after rosdeploy's own
     labels: tuple[tuple[str, str], ...]
     extra_yaml: str                         # `extra`, YAML-dumped and indented for the service block
+    extra: Mapping[str, Any]                # `extra` as data, `$` escaped unless compose_interpolate
 
 
 @dataclass(frozen=True)
@@ -238,11 +245,23 @@ class _Static:
     healthcheck: HealthView | None
     labels: tuple[tuple[str, str], ...]
     extra_yaml: str
+    extra: Mapping[str, Any]
 
 
-class _NoAliasDumper(yaml.SafeDumper):
+class _Dumper(getattr(yaml, "CSafeDumper", yaml.SafeDumper)):  # type: ignore[misc]
+    """libyaml's emitter where PyYAML has it; never anchors and aliases (compose v1 chokes on some)."""
+
     def ignore_aliases(self, data: Any) -> bool:
         return True
+
+
+def _escape_dollars(value: Any) -> Any:
+    """`compose:` values are literal unless the service opts in: `$` -> `$$` in every string value."""
+    if isinstance(value, dict):
+        return {k: _escape_dollars(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_escape_dollars(v) for v in value]
+    return value.replace("$", "$$") if isinstance(value, str) else value
 
 
 def _size_bytes(text: str) -> int:
@@ -254,12 +273,12 @@ def _size_bytes(text: str) -> int:
 
 def _host_where(host: Host) -> tuple[str, int | None]:
     file, _, line = host.source.rpartition(":")
-    return (file, int(line)) if file and line.isdigit() else (host.source or "inventory", None)
+    return (file, int(line)) if file and line.isascii() and line.isdigit() else (host.source or "inventory", None)
 
 
 def _host_problem(host: Host, key: str, message: str) -> Problem:
     file, line = _host_where(host)
-    return Problem(file, line, key, f"robot {host.name}: {message}")
+    return Problem(file, line, key, f"robot {host.name!r}: {message}")
 
 
 def _device_group(path: str, logical: str, udev: UdevDevice | None) -> str | None:
@@ -297,6 +316,8 @@ class Renderer:
                    LOGROTATE_FILE: "logrotate.conf.j2", UDEV_FILE: "udev.rules.j2"}
         outputs.update(self._user_only_templates(outputs.values()))
         self.templates = {out: self._compile(name) for out, name in sorted(outputs.items())}
+        compose_file = self.templates[COMPOSE_FILE].filename or ""
+        self.builtin_compose = Path(compose_file).resolve().parent == TEMPLATE_DIR.resolve()
         self.statics = tuple(self._static(s) for s in spec.services)
         self.images = tuple(sorted({s.image for s in self.statics}))
         self.image_vars = self._image_vars()
@@ -305,7 +326,7 @@ class Renderer:
 
     def _problem(self, keypath: tuple[Any, ...], message: str) -> Problem:
         """A problem in the fleet file, at the line of the key when the loader recorded it."""
-        return Doc(self.spec.path, None, dict(self.spec.lines)).problem(keypath, message)
+        return Doc(self.spec.path, None, self.spec.lines).problem(keypath, message)  # type: ignore[arg-type]
 
     def _override_dir(self) -> Path | None:
         if not self.spec.templates:
@@ -318,11 +339,12 @@ class Renderer:
         return path
 
     def _environment(self) -> jinja2.Environment:
-        loaders = [jinja2.FileSystemLoader(str(self.override))] if self.override else []
+        """Sandboxed (rosdeploy.sandbox): fleet values and template folders are configuration, not code."""
+        loaders: list[jinja2.BaseLoader] = [ContainedLoader(str(self.override))] if self.override else []
         loaders.append(jinja2.FileSystemLoader(str(TEMPLATE_DIR)))
-        env = jinja2.Environment(
-            loader=jinja2.ChoiceLoader(loaders), undefined=jinja2.StrictUndefined, autoescape=False,
-            trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True, auto_reload=False)
+        env = Sandbox(plain_types=(ServiceView, HealthView, UdevView, Host, FleetSpec), loader=jinja2.ChoiceLoader(loaders),
+                      trim_blocks=True, lstrip_blocks=True,
+                      keep_trailing_newline=True, auto_reload=False)
         env.filters.update(FILTERS)
         return env
 
@@ -341,6 +363,8 @@ class Renderer:
             raise RenderError([Problem(exc.filename or name, exc.lineno, "", f"template syntax error: {exc.message}")]) from exc
         except jinja2.TemplateNotFound as exc:
             raise RenderError([self._problem(("templates",), f"template {exc.name} not found")]) from exc
+        except jinja2.TemplateError as exc:   # e.g. a link out of the template folder (sandbox.ContainedLoader)
+            raise RenderError([self._problem(("templates",), exc.message or str(exc))]) from exc
 
     def _static(self, svc: Service) -> _Static:
         spec, where = self.spec, ("services", svc.name)
@@ -354,7 +378,7 @@ class Renderer:
                 problems.append(self._problem(where + ("environment",), f"invalid variable name {key!r}"))
             elif "{{" in str(value) or "{%" in str(value):
                 try:
-                    templated[key] = self.env.from_string(str(value))
+                    templated[key] = value_template(self.env, str(value))
                 except jinja2.TemplateSyntaxError as exc:
                     problems.append(self._problem(where + ("environment", key), f"template syntax error: {exc.message}"))
             else:
@@ -370,9 +394,9 @@ class Renderer:
         if problems:
             raise RenderError(problems)
         hc = svc.healthcheck
-        extra = ""
+        extra, extra_data = "", dict(svc.extra) if svc.compose_interpolate else _escape_dollars(dict(svc.extra))
         if svc.extra:
-            dumped = yaml.dump(dict(svc.extra), Dumper=_NoAliasDumper, sort_keys=True,
+            dumped = yaml.dump(extra_data, Dumper=_Dumper, sort_keys=True,
                                default_flow_style=False, allow_unicode=True, width=1 << 16)
             extra = "".join(f"    {line}\n" for line in dumped.splitlines())
         return _Static(
@@ -381,7 +405,7 @@ class Renderer:
             healthcheck=HealthView(tuple(hc.test), hc.interval, hc.timeout, hc.retries, hc.start_period) if hc else None,
             labels=(("io.rosdeploy.project", spec.project), ("io.rosdeploy.service", svc.name),
                     ("io.rosdeploy.version", spec.version)),
-            extra_yaml=extra)
+            extra_yaml=extra, extra=extra_data)
 
     def _image_vars(self) -> tuple[tuple[str, str], ...]:
         owners: dict[str, str] = {}
@@ -406,7 +430,16 @@ class Renderer:
         self._check_leaks(host, files)
         return RenderedRelease(host=host.name, project=self.spec.project, version=self.spec.version,
                                files=tuple(files), images=self.images,
-                               secret_values=frozenset(value for _, value in context["secrets"]))
+                               secret_values=frozenset(value for _, value in context["secrets"]),
+                               compose_data=self._compose_data(context, files))
+
+    def _compose_data(self, context: Mapping[str, Any], files: list[RenderedFile]) -> Any:
+        """(as written, as compose reads it with the .env) for the built-in compose template."""
+        if not self.builtin_compose:
+            return None
+        from rosdeploy.checks import parse_env
+        env = parse_env(next(f.content for f in files if f.name == ENV_FILE))
+        return compose_data(context), compose_data(context, env)
 
     def _context(self, host: Host, problems: list[Problem]) -> dict[str, Any]:
         """What the templates see; every problem found on the way goes to `problems`."""
@@ -431,6 +464,7 @@ class Renderer:
         env.update(st.environment)
         for key, template in st.templated.items():
             env[key] = self._render_value(template, host, variables, ("services", svc.name, "environment", key), problems)
+        self._check_env_leaks(host, svc.name, env, problems)
         udev_by_path = {f"/dev/{u.symlink}": u for u in host.udev}
         devices, groups = [], set()
         for logical in svc.devices:
@@ -458,15 +492,24 @@ class Renderer:
             depends_on=tuple(sorted(svc.depends_on)), devices=tuple(devices), group_add=tuple(sorted(groups)),
             user=svc.user, privileged=svc.privileged, profiles=tuple(svc.profiles), gpu=gpu,
             shm_size=shm, log_dir=f"../../logs/{svc.name}", volumes=svc.volumes, labels=st.labels,
-            extra_yaml=st.extra_yaml)
+            extra_yaml=st.extra_yaml, extra=st.extra)
 
     def _render_value(self, template: jinja2.Template, host: Host, variables: Mapping[str, Any],
                       key: tuple[str, ...], problems: list[Problem]) -> str:
         try:
-            return template.render({**variables, "vars": variables, "host": host, "inventory_hostname": host.name})
+            return render_value(template, {**variables, "vars": variables, "host": host,
+                                           "inventory_hostname": host.name})
         except jinja2.TemplateError as exc:
-            problems.append(self._problem(key, f"robot {host.name}: {exc.message}"))
+            problems.append(self._problem(key, f"robot {host.name!r}: {exc.message}"))
             return ""
+
+    def _check_env_leaks(self, host: Host, service: str, env: Mapping[str, str], problems: list[Problem]) -> None:
+        """A vault value copied into an `environment:` value: reported at the fleet key that copies it."""
+        secrets = [s for s in host.secret_values if len(s) >= MIN_LEAK_CHECK]
+        for key in sorted(k for k, value in env.items() if any(s in value for s in secrets)):
+            problems.append(self._problem(("services", service, "environment", key), (
+                f"robot {host.name!r}: this value copies a vault secret into compose.yml, which is not secret; "
+                f"move {key} to the service's `secrets:` ({key}: <inventory var>) so it goes to .env only")))
 
     def _secrets(self, host: Host, problems: list[Problem]) -> list[tuple[str, str]]:
         """(env name, value) for every secret env of every service, sorted; values validated for .env."""
@@ -505,6 +548,12 @@ class Renderer:
             extra = [extra]
         if not isinstance(extra, (list, tuple)) or not all(isinstance(p, str) and p for p in extra):
             problems.append(_host_problem(host, "dds_peers", "dds_peers must be a list of robot addresses"))
+            return ()
+        bad = [p for p in extra if not _is_peer_address(p)]
+        if bad:
+            problems.append(_host_problem(host, "dds_peers", (
+                f"{', '.join(repr(p) for p in bad[:5])} {'is' if len(bad) == 1 else 'are'} not an IP address or "
+                "host name: list the other robots' addresses, e.g. [10.0.0.12, amr-2.local]")))
             return ()
         own = [s.name for s in self.spec.services] if self.spec.network_mode == "bridge" else []
         seen: dict[str, None] = {}
@@ -556,22 +605,26 @@ class Renderer:
             content = template.render(context)
         except (jinja2.TemplateError, _Rejected) as exc:
             raise RenderError([self._template_problem(exc, template, host)]) from exc
+        except Exception as exc:   # 1/0, recursion, a bound: the template's fault, never an internal error
+            raise RenderError([self._template_problem(jinja2.TemplateRuntimeError(describe(exc)), template, host,
+                                                      exc.__traceback__)]) from exc
         if out == ENV_FILE:
             return RenderedFile(out, content, mode=0o600, secret=bool(context["secrets"]))
         return RenderedFile(out, content)
 
-    def _template_problem(self, exc: Exception, template: jinja2.Template, host: Host) -> Problem:
+    def _template_problem(self, exc: Exception, template: jinja2.Template, host: Host,
+                          tb: Any = None) -> Problem:
         """Locate an error raised while rendering: the deepest frame that is template code."""
         file, line = template.filename or template.name or "?", None
         names = {t.filename for t in self.templates.values()}
-        for frame, lineno in traceback.walk_tb(exc.__traceback__):
+        for frame, lineno in traceback.walk_tb(tb or exc.__traceback__):
             filename = frame.f_code.co_filename
             if filename in names or filename.endswith(".j2"):   # included partials too
                 file, line = filename, lineno
         message = getattr(exc, "message", None) or str(exc)
         missing = re.search(r"'([^']+)' is undefined|has no attribute '([^']+)'", message)
         what = f"undefined name {next(g for g in missing.groups() if g)!r}" if missing else message
-        return Problem(file, line, "", f"robot {host.name}: {what}" + (f" ({message})" if missing else ""))
+        return Problem(file, line, "", f"robot {host.name!r}: {what}" + (f" ({message})" if missing else ""))
 
     @staticmethod
     def _check_leaks(host: Host, files: Iterable[RenderedFile]) -> None:
@@ -581,6 +634,19 @@ class Renderer:
         if leaked:
             raise RenderError([_host_problem(host, "", f"a secret value would be written to {name}; pass it with "
                                                        "`secrets:` so it goes to .env only") for name in leaked])
+
+
+_HOSTNAME = re.compile(r"(?=.{1,253}\Z)[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
+                       r"(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*\.?", re.ASCII)
+
+
+def _is_peer_address(peer: str) -> bool:
+    """An IPv4/IPv6 address or an RFC 1123 host name: what a DDS locator or <Peer address> takes."""
+    try:
+        ipaddress.ip_address(peer)
+        return True
+    except ValueError:
+        return bool(_HOSTNAME.fullmatch(peer))
 
 
 def image_var(service: str) -> str:

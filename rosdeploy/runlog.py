@@ -10,6 +10,7 @@ import os
 import secrets
 import time
 from pathlib import Path
+from typing import Callable
 
 from rosdeploy.results import FleetResult
 
@@ -22,7 +23,7 @@ def runs_dir() -> Path:
     return Path(os.environ.get("ROSDEPLOY_RUNS_DIR") or Path.home() / ".rosdeploy" / "runs")
 
 
-def save(result: FleetResult, masked: "callable[[str], str]") -> Path:
+def save(result: FleetResult, masked: Callable[[str], str]) -> Path:
     """Write the run's record; every text passes through `masked` so no secret lands on disk."""
     folder = runs_dir() / result.run_id
     folder.mkdir(parents=True, exist_ok=True)

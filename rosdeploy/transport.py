@@ -114,9 +114,10 @@ class SSHTransport:
             kwargs["key_filename"] = [os.path.expanduser(self.host.key_file)]
         conn = Connection(self.host.address, user=self.host.user, port=self.host.port, config=config,
                           connect_timeout=int(self.options.connect_timeout) or None, connect_kwargs=kwargs)
-        conn.client.set_missing_host_key_policy(paramiko.RejectPolicy())
-        for path in known_hosts_for(self.host, self.options):
-            conn.client.get_host_keys().update(_parsed_host_keys(path))
+        files = [_parsed_host_keys(path) for path in known_hosts_for(self.host, self.options)]
+        conn.client.set_missing_host_key_policy(_RejectUnknown(files))
+        for known in files:
+            conn.client.get_host_keys().update(known.keys)
         return conn
 
     @property
@@ -125,12 +126,16 @@ class SSHTransport:
         return self._conn.host if port == 22 else f"[{self._conn.host}]:{port}"
 
     def open(self) -> "SSHTransport":
+        self._check_key_file()
         try:
             self._conn.open()
             _no_delay(self._conn.client.get_transport())
             _keepalive(self._conn.client.get_transport())
         except paramiko.BadHostKeyException as exc:
             raise HostKeyError(self.host.name, self._changed_key_message(exc)) from exc
+        except RevokedHostKey as exc:
+            raise HostKeyError(self.host.name, f"host key of {self.endpoint} is REVOKED: {exc}; rosdeploy "
+                                               "refuses it. Replace the robot's host key") from exc
         except paramiko.SSHException as exc:
             if "not found in known_hosts" in str(exc):
                 raise HostKeyError(self.host.name, self._unknown_key_message()) from exc
@@ -142,6 +147,16 @@ class SSHTransport:
             raise ConnectError(self.host.name, f"unreachable: {self.endpoint}: {exc.strerror or exc}") from exc
         return self
 
+    def _check_key_file(self) -> None:
+        """A missing key file would surface as paramiko's bare "No such file"; name the file and its var."""
+        key = self.host.key_file and os.path.expanduser(self.host.key_file)
+        if key and not os.access(key, os.R_OK):
+            why = "does not exist" if not os.path.exists(key) else "cannot be read (check its permissions)"
+            raise ConnectError(self.host.name, f"SSH key file {key} {why}; it is set by "
+                               f"{self.host.key_file_var or 'ansible_ssh_private_key_file'}: fix the path (a "
+                               "relative one is taken from the working directory, as in Ansible; write "
+                               "'{{ inventory_dir }}/...' for one beside the inventory)")
+
     def _changed_key_message(self, exc: paramiko.BadHostKeyException) -> str:
         files = ", ".join(known_hosts_for(self.host, self.options))
         return (f"HOST KEY CHANGED for {self.endpoint}: it offered {exc.key.get_name()} "
@@ -150,10 +165,12 @@ class SSHTransport:
                 f"`ssh-keygen -R '{self.endpoint}'` then add the new key.")
 
     def _unknown_key_message(self) -> str:
-        files = ", ".join(known_hosts_for(self.host, self.options))
-        return (f"host key of {self.endpoint} is not in {files}; rosdeploy never trusts an unknown "
+        paths = known_hosts_for(self.host, self.options)
+        skipped = " ".join(w for path in paths for w in _parsed_host_keys(path).warnings)
+        return (f"host key of {self.endpoint} is not in {', '.join(paths)}; rosdeploy never trusts an unknown "
                 f"key. Verify the robot's fingerprint, then add it (e.g. `ssh-keyscan -p {self._conn.port} "
-                f"{self._conn.host} >> ~/.ssh/known_hosts`) or point `rosdeploy_known_hosts` at a file that has it.")
+                f"{self._conn.host} >> ~/.ssh/known_hosts`) or point `rosdeploy_known_hosts` at a file that has it."
+                + (f" Note: {skipped}" if skipped else ""))
 
     def run(self, command: Command) -> Result:
         """Run one command; a non-zero exit is a Result, not an exception (see `check`)."""
@@ -212,17 +229,108 @@ def _keepalive(transport: paramiko.Transport | None) -> None:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_USER_TIMEOUT, int(LINK_TIMEOUT * 1000))
 
 
+class RevokedHostKey(paramiko.SSHException):
+    """The robot offered a key a known_hosts file marks `@revoked`."""
+
+
+@dataclass(frozen=True)
+class KnownHosts:
+    """One known_hosts file as rosdeploy trusts it.
+
+    paramiko cannot verify host certificates: it never asks a server for a certificate host
+    key type (its client offers plain key types only) and its HostKeys parser raises
+    InvalidHostKey on an `@cert-authority` line, which stopped `status` for the whole fleet
+    (issue 18). So `@cert-authority` lines are skipped with a warning and the plain keys in
+    the file are verified as always; `@revoked` keys are never trusted, and a robot that
+    offers one is refused by name rather than reported unknown.
+    """
+
+    keys: paramiko.HostKeys
+    revoked: frozenset[tuple[str, bytes]]      # (key type, key blob)
+    warnings: tuple[str, ...]
+
+
+class _RejectUnknown(paramiko.MissingHostKeyPolicy):
+    """paramiko's RejectPolicy, naming a revoked key as revoked."""
+
+    def __init__(self, files: list[KnownHosts]) -> None:
+        self.revoked = frozenset().union(*(f.revoked for f in files))
+
+    def missing_host_key(self, client: paramiko.SSHClient, hostname: str, key: paramiko.PKey) -> None:
+        if (key.get_name(), key.asbytes()) in self.revoked:
+            raise RevokedHostKey(f"it offered {key.get_name()} {key.fingerprint}, marked @revoked in known_hosts")
+        raise paramiko.SSHException(f"Server {hostname!r} not found in known_hosts")
+
+
 @functools.lru_cache(maxsize=32)
-def _host_keys_file(path: str, mtime_ns: int) -> paramiko.HostKeys:
-    return paramiko.HostKeys(path)
+def _host_keys_file(path: str, mtime_ns: int) -> KnownHosts:
+    with open(path, encoding="utf-8", errors="replace") as handle:
+        return parse_known_hosts(handle.read().splitlines(), path)
 
 
-def _parsed_host_keys(path: str) -> paramiko.HostKeys:
+def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
+    """Plain entries (hashed or not) into HostKeys; @revoked into `revoked`; the rest skipped with a warning."""
+    keys, revoked, authorities, unreadable = paramiko.HostKeys(), set(), 0, []
+    entries: list[paramiko.hostkeys.HostKeyEntry] = []
+    for number, line in enumerate(lines, 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        marker = line.split(None, 1)[0]
+        if marker == "@cert-authority":
+            authorities += 1
+            continue
+        blob = _key_blob(line.split()[2:4]) if marker == "@revoked" else None
+        entry = None if marker == "@revoked" else _entry(line)
+        if blob is None and entry is None:
+            unreadable.append(number)
+        elif blob is not None:
+            revoked.add(blob)
+        elif entry is not None:
+            entries.append(entry)
+    for entry in entries:   # a revoked key is never trusted, whatever else the file says
+        if (entry.key.get_name(), entry.key.asbytes()) not in revoked:
+            for name in entry.hostnames:
+                keys.add(name, entry.key.get_name(), entry.key)
+    return KnownHosts(keys, frozenset(revoked), _warnings(path, authorities, unreadable))
+
+
+def _entry(line: str) -> paramiko.hostkeys.HostKeyEntry | None:
+    try:
+        entry = paramiko.hostkeys.HostKeyEntry.from_line(line)
+    except (paramiko.SSHException, ValueError, TypeError, IndexError):   # InvalidHostKey is an SSHException
+        return None
+    return entry if entry is not None and entry.key is not None else None
+
+
+def _key_blob(fields: list[str]) -> tuple[str, bytes] | None:
+    """(type, blob) of `TYPE BASE64` fields, checked by loading them as a paramiko key."""
+    entry = _entry(" ".join(["revoked.invalid", *fields])) if len(fields) == 2 else None
+    return (entry.key.get_name(), entry.key.asbytes()) if entry else None
+
+
+def _warnings(path: str, authorities: int, unreadable: list[int]) -> tuple[str, ...]:
+    out = []
+    if authorities:
+        out.append(f"{path}: {authorities} @cert-authority line(s) skipped: rosdeploy cannot verify SSH host "
+                   "certificates (paramiko does not); list the robots' plain host keys in known_hosts.")
+    if unreadable:
+        lines = ", ".join(map(str, unreadable[:10]))
+        out.append(f"{path}: line(s) {lines} skipped: not a host key rosdeploy can read.")
+    return tuple(out)
+
+
+def known_hosts_warnings(path: str) -> tuple[str, ...]:
+    """What was skipped in a known_hosts file, for a command that wants to show it."""
+    return _parsed_host_keys(os.path.expanduser(path)).warnings
+
+
+def _parsed_host_keys(path: str) -> KnownHosts:
     """A known_hosts file parsed once per run, not once per robot (that grows with fleet size squared)."""
     try:
         return _host_keys_file(path, os.stat(path).st_mtime_ns)
     except OSError:
-        return paramiko.HostKeys()
+        return KnownHosts(paramiko.HostKeys(), frozenset(), ())
 
 
 def _drain(chan: paramiko.Channel, deadline: float) -> tuple[str, str]:

@@ -29,14 +29,10 @@ import tempfile
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Callable, Mapping, Sequence
 
-from cryptography.exceptions import InvalidSignature, InvalidTag
-from cryptography.hazmat.primitives import hashes, hmac, padding
-from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
-from cryptography.hazmat.primitives.ciphers.aead import AESGCM
-from cryptography.hazmat.primitives.kdf.pbkdf2 import PBKDF2HMAC
-from cryptography.hazmat.primitives.kdf.scrypt import Scrypt
+# cryptography is imported where a file is sealed or opened (~60 ms at import): `rosdeploy --help`,
+# completion and a `validate` of a fleet without vault files never load it.
 
 from rosdeploy.errors import Problem, VaultError
 
@@ -73,6 +69,8 @@ def is_encrypted(data: bytes) -> bool:
 
 def encrypt(plaintext: bytes, password: bytes, params: ScryptParams = ScryptParams()) -> bytes:
     header = f"{MAGIC.decode()}1;AES256-GCM;scrypt;{params.header_field()}".encode()
+    from cryptography.hazmat.primitives.ciphers.aead import AESGCM
+
     salt, nonce = os.urandom(_SALT), os.urandom(_NONCE)
     sealed = AESGCM(_scrypt(password, salt, params)).encrypt(nonce, plaintext, header)
     return header + b"\n" + _wrap(base64.b64encode(salt + nonce + sealed), _LINE)
@@ -80,6 +78,9 @@ def encrypt(plaintext: bytes, password: bytes, params: ScryptParams = ScryptPara
 
 def decrypt(data: bytes, password: bytes, source: str, *, password_source: str = "") -> bytes:
     """Plaintext of a rosdeploy or Ansible vault file; VaultError naming `source` otherwise."""
+    from cryptography.exceptions import InvalidTag
+    from cryptography.hazmat.primitives.ciphers.aead import AESGCM
+
     header, body = _split_header(data, source)
     if data.startswith(ANSIBLE_MAGIC):
         return _ansible_decrypt(header, body, password, source, password_source)
@@ -95,6 +96,8 @@ def decrypt(data: bytes, password: bytes, source: str, *, password_source: str =
 
 
 def _scrypt(password: bytes, salt: bytes, params: ScryptParams) -> bytes:
+    from cryptography.hazmat.primitives.kdf.scrypt import Scrypt
+
     return Scrypt(salt=salt, length=32, n=params.n, r=params.r, p=params.p).derive(password)
 
 
@@ -151,8 +154,9 @@ def _wrap(data: bytes, width: int) -> bytes:
 
 def _wrong_password(source: str, password_source: str) -> VaultError:
     used = f" (the password came from {password_source})" if password_source else ""
-    return _error(source, f"cannot decrypt: wrong vault password, or the file was modified{used}; "
-                          f"check the password source: {HOW_TO_GIVE_PASSWORD}")
+    return WrongPassword([Problem(source, None, "", f"cannot decrypt: wrong vault password, or the file was "
+                                                    f"modified{used}; check the password source: "
+                                                    f"{HOW_TO_GIVE_PASSWORD}, or --vault-id LABEL@FILE")])
 
 
 def _error(source: str, message: str) -> VaultError:
@@ -163,6 +167,9 @@ def _error(source: str, message: str) -> VaultError:
 
 def ansible_encrypt(plaintext: bytes, password: bytes, label: str | None = None) -> bytes:
     """Ansible's own format, so `vault edit` of an Ansible vault leaves it readable by Ansible."""
+    from cryptography.hazmat.primitives import hashes, hmac, padding
+    from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
+
     salt = os.urandom(32)
     cipher_key, mac_key, iv = _ansible_keys(password, salt)
     padder = padding.PKCS7(128).padder()
@@ -183,6 +190,10 @@ def ansible_label(data: bytes) -> str | None:
 
 
 def _ansible_decrypt(header: str, body: str, password: bytes, source: str, password_source: str) -> bytes:
+    from cryptography.exceptions import InvalidSignature
+    from cryptography.hazmat.primitives import hashes, hmac, padding
+    from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
+
     fields = header.split(";")
     if len(fields) < 3 or fields[1] not in ("1.1", "1.2") or fields[2] != "AES256":
         raise _error(source, f"unsupported Ansible vault header {header!r}: only 1.1/1.2 AES256 is "
@@ -208,6 +219,9 @@ def _ansible_decrypt(header: str, body: str, password: bytes, source: str, passw
 
 
 def _ansible_keys(password: bytes, salt: bytes) -> tuple[bytes, bytes, bytes]:
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.hazmat.primitives.kdf.pbkdf2 import PBKDF2HMAC
+
     derived = PBKDF2HMAC(hashes.SHA256(), length=80, salt=salt, iterations=10000).derive(password)
     return derived[:32], derived[32:64], derived[64:]
 
@@ -217,54 +231,117 @@ def _ansible_keys(password: bytes, salt: bytes) -> tuple[bytes, bytes, bytes]:
 Prompt = Callable[[str], str]
 
 
-class Vault:
-    """The vault password, found on first need, and a cache of decrypted files.
+@dataclass(frozen=True)
+class VaultId:
+    """One `--vault-id label@source`: source is a password file (an executable one is run) or `prompt`."""
 
-    Rendering 500 robots reads the same group_vars vault for each of them: the
-    cache (keyed by the ciphertext's hash) makes that one scrypt, not 500.
+    label: str
+    source: str
+
+    @staticmethod
+    def parse(text: str) -> "VaultId":
+        """`label@source`, or just `source` (label `default`), as ansible-vault reads --vault-id."""
+        label, at, source = text.partition("@")
+        if not at:
+            label, source = "default", text
+        if not label or not source:
+            raise _error("--vault-id", f"{text!r} is not LABEL@FILE (or LABEL@prompt, or FILE)")
+        return VaultId(label, source)
+
+
+class WrongPassword(VaultError):
+    """The password did not open the file: another vault id may."""
+
+
+class Vault:
+    """Vault passwords, each found on first need, and a cache of decrypted files.
+
+    One password (the default sources: password_file, then the environment, then a prompt)
+    or several vault ids, as in Ansible: a file is tried with the id its label names first,
+    then with every other. Rendering 500 robots reads the same group_vars vault for each of
+    them: the cache (keyed by the ciphertext's hash) makes that one key derivation, not 500.
     Thread-safe: the rollout renders robots from many threads.
     """
 
     def __init__(self, password: bytes | None = None, *, password_file: str | None = None,
-                 env: Mapping[str, str] | None = None, prompt: Prompt | None = None) -> None:
+                 env: Mapping[str, str] | None = None, prompt: Prompt | None = None,
+                 ids: Sequence[VaultId] = ()) -> None:
         self._given = password
         self._password_file = password_file
         self._env = dict(os.environ if env is None else env)
         self._prompt = prompt
-        self._password: bytes | None = None
-        self._source = "the caller" if password is not None else ""
+        self._ids = tuple(ids)
+        self._passwords: dict[int, tuple[bytes, str]] = {}
         self._cache: dict[bytes, bytes] = {}
         self._lock = threading.Lock()
+        if password is not None:
+            self._passwords[0] = (password, "the caller")
 
     @property
     def password_source(self) -> str:
-        return self._source
+        return self._passwords[0][1] if 0 in self._passwords else ""
 
-    def password(self, needed_by: str) -> bytes:
-        """The password, asking its sources in order the first time it is needed."""
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """The labels of the vault ids, the first one encrypts; ("default",) without ids."""
+        return tuple(i.label for i in self._ids) or ("default",)
+
+    def password(self, needed_by: str, label: str | None = None) -> bytes:
+        """The password of `label` (the first id without one), asking its source the first time."""
+        index = self.labels.index(label) if label in self.labels else 0
+        return self._password(index, needed_by)[0]
+
+    def _password(self, index: int, needed_by: str) -> tuple[bytes, str]:
         with self._lock:
-            if self._password is None:
-                self._password, self._source = self._find_password(needed_by)
-            return self._password
+            if index not in self._passwords:
+                self._passwords[index] = (self._id_password(self._ids[index], needed_by) if self._ids
+                                          else self._find_password(needed_by))
+            return self._passwords[index]
 
     def decrypt(self, data: bytes, source: str) -> bytes:
         key = hashlib.sha256(data).digest()
         with self._lock:
             if key in self._cache:
                 return self._cache[key]
-        plaintext = decrypt(data, self.password(source), source, password_source=self._source)
+        label = ansible_label(data) if data.startswith(ANSIBLE_MAGIC) else None
+        # Ansible's order: the id the file's label names, then every other one.
+        order = sorted(range(len(self.labels)), key=lambda i: self.labels[i] != label)
+        tried = []
+        for index in order:
+            password, used = self._password(index, source)
+            try:
+                plaintext = decrypt(data, password, source, password_source=used)
+                break
+            except WrongPassword:
+                tried.append(used)
+        else:
+            raise _wrong_password(source, ", then ".join(tried))
         with self._lock:
             self._cache[key] = plaintext
         return plaintext
 
-    def encrypt(self, plaintext: bytes, needed_by: str) -> bytes:
-        return encrypt(plaintext, self.password(needed_by))
+    def encrypt(self, plaintext: bytes, needed_by: str, *, ansible: bool = False, label: str | None = None) -> bytes:
+        """rosdeploy's format, or Ansible's (1.2 with the vault id's label unless it is `default`)."""
+        label = label or self.labels[0]
+        password = self.password(needed_by, label)   # the first id's when no id has this label
+        if ansible:
+            return ansible_encrypt(plaintext, password, None if label == "default" else label)
+        return encrypt(plaintext, password)
 
     def read(self, path: str, data: bytes) -> tuple[bytes, bool]:
         """(plaintext, was_encrypted) of a file's bytes."""
         if not is_encrypted(data):
             return data, False
         return self.decrypt(data, path), True
+
+    def _id_password(self, vault_id: VaultId, needed_by: str) -> tuple[bytes, str]:
+        if vault_id.source == "prompt":
+            typed = self._prompt(f"Vault password ({vault_id.label}): ") if self._prompt else ""
+            if not typed:
+                raise _error(needed_by, f"--vault-id {vault_id.label}@prompt needs a terminal: give a password "
+                                        "file instead")
+            return typed.encode(), f"--vault-id {vault_id.label}@prompt"
+        return read_password_file(vault_id.source), f"--vault-id {vault_id.label}@{vault_id.source}"
 
     def _find_password(self, needed_by: str) -> tuple[bytes, str]:
         if self._given is not None:
@@ -282,6 +359,32 @@ class Vault:
                 return typed.encode(), "the prompt"
         raise _error(needed_by, f"this file is vault-encrypted and no vault password was given: "
                                 f"{HOW_TO_GIVE_PASSWORD}")
+
+
+def holds_ansible_vaults(path: str, max_files: int = 2000) -> bool:
+    """Whether the inventory around `path` already holds Ansible vault data (whole files or `!vault`).
+
+    The inventory is the nearest directory up from `path` with group_vars/ or host_vars/;
+    without one there is no inventory to match, and the answer is False.
+    """
+    start = Path(path).resolve()
+    folder = start if start.is_dir() else start.parent
+    root = next((p for p in (folder, *folder.parents) if (p / "group_vars").is_dir() or (p / "host_vars").is_dir()),
+                None)
+    if root is None:
+        return False
+    files = (p for p in root.rglob("*") if p.suffix in ("", ".yml", ".yaml", ".json") and p.is_file())
+    for count, file in enumerate(files):
+        if count >= max_files:
+            return False
+        try:
+            with open(file, "rb") as handle:
+                head = handle.read(65536)
+        except OSError:
+            continue
+        if ANSIBLE_MAGIC in head:
+            return True
+    return False
 
 
 def read_password_file(path: str) -> bytes:
@@ -313,11 +416,11 @@ def _run_password_script(path: str) -> bytes:
 # ------------------------------------------------------------- files in place
 
 
-def encrypt_file(path: str, vault: Vault) -> None:
+def encrypt_file(path: str, vault: Vault, ansible_format: bool = False, label: str | None = None) -> None:
     data = _read_file(path)
     if is_encrypted(data):
         raise _error(path, "already vault-encrypted: use `rosdeploy vault edit` to change it")
-    write_private(path, vault.encrypt(data, path))
+    write_private(path, vault.encrypt(data, path, ansible=ansible_format, label=label))
 
 
 def decrypt_file(path: str, vault: Vault) -> None:
@@ -331,12 +434,13 @@ def view_file(path: str, vault: Vault) -> bytes:
     return vault.decrypt(data, path)
 
 
-def edit_file(path: str, vault: Vault, run_editor: Callable[[str], None]) -> bool:
+def edit_file(path: str, vault: Vault, run_editor: Callable[[str], None], ansible_format: bool = False) -> bool:
     """Decrypt to a private temp file, let `run_editor` change it, re-encrypt; True if it changed.
 
-    A missing file is created. An Ansible vault stays an Ansible vault, so Ansible
-    can still read it. The plaintext only ever sits in a 0600 file that is
-    overwritten before it is removed, whatever the editor does.
+    A missing file is created (in Ansible's format with `ansible_format`). An Ansible
+    vault stays an Ansible vault, with its label, so Ansible can still read it. The
+    plaintext only ever sits in a 0600 file that is overwritten before it is removed,
+    whatever the editor does.
     """
     original = _read_file(path) if os.path.exists(path) else None
     if original is not None and not is_encrypted(original):
@@ -352,17 +456,19 @@ def edit_file(path: str, vault: Vault, run_editor: Callable[[str], None]) -> boo
         _shred(temp)
     if original is not None and edited == plaintext:
         return False
-    if original is not None and original.startswith(ANSIBLE_MAGIC):
-        sealed = ansible_encrypt(edited, vault.password(path), ansible_label(original))
+    if original is not None:
+        ansible = original.startswith(ANSIBLE_MAGIC)
+        sealed = vault.encrypt(edited, path, ansible=ansible, label=ansible_label(original) if ansible else None)
     else:
-        sealed = vault.encrypt(edited, path)
+        sealed = vault.encrypt(edited, path, ansible=ansible_format)
     write_private(path, sealed)
     return True
 
 
-def encrypt_string(value: str, vault: Vault, name: str) -> str:
+def encrypt_string(value: str, vault: Vault, name: str, ansible_format: bool = False,
+                   label: str | None = None) -> str:
     """`name: !vault |` + indented ciphertext, to paste into a vars file (Ansible's encrypt_string)."""
-    sealed = vault.encrypt(value.encode("utf-8"), name).decode("ascii")
+    sealed = vault.encrypt(value.encode("utf-8"), name, ansible=ansible_format, label=label).decode("ascii")
     return f"{name}: !vault |\n" + "".join(f"  {line}\n" for line in sealed.splitlines())
 
 

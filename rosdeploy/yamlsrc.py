@@ -6,6 +6,8 @@ values. Values stay plain dicts/lists/scalars: nothing downstream has to know.
 """
 from __future__ import annotations
 
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,8 +19,18 @@ from rosdeploy.errors import InputError, Problem
 KeyPath = tuple[Any, ...]
 
 
-class _Loader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate mapping keys (a silent override is a bug)."""
+# libyaml's composer when PyYAML was built with it (10x faster on a 5,000-robot inventory);
+# the pure-Python one otherwise. Only composing uses it: values are built by _build below.
+_Composer = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+# Bounds that keep a hostile or broken file from taking the controller down:
+MAX_DEPTH = 200            # nesting levels (libyaml's composer recurses in C and would crash)
+MAX_EXPANSION = 10         # aliases may multiply the document's nodes this much ("billion laughs")
+MIN_BUDGET = 100_000       # ... but a small file may always expand to this many nodes
+MAX_FILE_BYTES = 64 << 20  # a 5,000-robot inventory is ~1 MiB
+
+
+_COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
 
 
 class Encrypted(str):
@@ -29,7 +41,16 @@ class Encrypted(str):
     """
 
 
-_Loader.add_constructor("!vault", lambda loader, node: Encrypted(loader.construct_scalar(node)))
+class _Constructor(yaml.constructor.SafeConstructor):
+    """Builds scalars (and resolves `<<` merges); refusing duplicate keys is _build_mapping's job."""
+
+
+class Unsafe(str):
+    """An `!unsafe` scalar: Ansible never templates it, and neither does the inventory."""
+
+
+_Constructor.add_constructor("!vault", lambda c, node: Encrypted(c.construct_scalar(node)))
+_Constructor.add_constructor("!unsafe", lambda c, node: Unsafe(c.construct_scalar(node)))
 
 
 @dataclass(frozen=True)
@@ -59,48 +80,201 @@ def dotted(keypath: KeyPath) -> str:
     return out
 
 
-def load(path: str | Path, text: str | None = None) -> Doc:
-    """Parse one YAML file; a syntax error becomes an InputError naming file and line."""
+def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | None = None) -> Doc:
+    """Parse one YAML file; any problem becomes an InputError naming file and line.
+
+    A duplicate key is an error, unless `duplicates` is given: then, as in Ansible
+    (inventories), it is a warning appended there and the last value wins.
+
+    Bounded for every caller (fleet file, inventory, vars files, rendered compose files):
+    nesting deeper than MAX_DEPTH and alias expansion beyond MAX_EXPANSION times the
+    document's own size are refused before anything is built.
+    """
     path = str(path)
     if text is None:
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise InputError([Problem(path, None, "", f"cannot read file: {exc.strerror}")]) from exc
+        text = read_text(path)
     try:
-        node = yaml.compose(text, Loader=_Loader)
+        _check_depth(text)
+        node = yaml.compose(text, Loader=_Composer)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = mark.line + 1 if mark else None
-        what = getattr(exc, "problem", None) or str(exc)
-        raise InputError([Problem(path, line, "", f"invalid YAML: {what}")]) from exc
+        raise InputError([Problem(path, _error_line(exc, text), "", f"invalid YAML: {_error_text(exc)}")]) from exc
+    except RecursionError as exc:   # the bound above should make this unreachable; never a crash
+        raise InputError([Problem(path, None, "", "invalid YAML: nested too deeply")]) from exc
+    if node is None:
+        return Doc(path, None, {})
+    _check_expansion(node, path)
     lines: dict[KeyPath, int] = {}
-    data = None if node is None else _build(node, (), lines, path)
-    return Doc(path, data, lines)
+    return Doc(path, _build(node, (), lines, path, _Constructor(), duplicates), lines)
 
 
-def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: str) -> Any:
-    lines.setdefault(keypath, node.start_mark.line + 1)
-    if isinstance(node, yaml.MappingNode):
-        return _build_mapping(node, keypath, lines, path)
-    if isinstance(node, yaml.SequenceNode):
-        return [_build(item, keypath + (i,), lines, path) for i, item in enumerate(node.value)]
+def load_data(text: str, path: str = "<text>") -> Any:
+    """Plain values of a YAML text (no line map), with load()'s bounds: for files rosdeploy wrote itself."""
     try:
-        return _Loader(" ").construct_object(node, deep=True)
+        _check_depth(text)
+        node = yaml.compose(text, Loader=_Composer)
     except yaml.YAMLError as exc:
-        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath), f"invalid value: {exc}")]) from exc
+        raise InputError([Problem(path, _error_line(exc, text), "", f"invalid YAML: {_error_text(exc)}")]) from exc
+    if node is None:
+        return None
+    _check_expansion(node, path)
+    try:
+        return _Constructor().construct_document(node)
+    except (yaml.YAMLError, TypeError, ValueError) as exc:   # an unhashable key; an int of 4,300+ digits
+        raise InputError([Problem(path, node.start_mark.line + 1, "", f"invalid YAML: {exc}")]) from exc
 
 
-def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath, int], path: str) -> dict:
-    loader = _Loader(" ")
-    loader.flatten_mapping(node)  # resolves `<<: *anchor` merges
+def read_text(path: str) -> str:
+    """A file's text as UTF-8; an unreadable file or a stray byte is a file:line problem (never its content)."""
+    try:
+        with open(path, "rb") as handle:
+            info = os.fstat(handle.fileno())
+            if not stat.S_ISREG(info.st_mode):   # /dev/zero, a FIFO: reading would never end
+                raise InputError([Problem(path, None, "", "not a regular file: give the path of a YAML file")])
+            data = handle.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise InputError([Problem(path, None, "", f"cannot read file: {exc.strerror}")]) from exc
+    if len(data) > MAX_FILE_BYTES:
+        raise InputError([Problem(path, None, "", f"larger than {MAX_FILE_BYTES >> 20} MiB: not a configuration "
+                                                  "file rosdeploy will read")])
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise InputError([Problem(path, line, "", f"byte 0x{data[exc.start]:02x} at column {column} is not UTF-8: "
+                                                  "save the file as UTF-8")]) from None
+
+
+def _error_line(exc: yaml.YAMLError, text: str) -> int | None:
+    mark = getattr(exc, "problem_mark", None)
+    if mark is not None:
+        return mark.line + 1
+    position = getattr(exc, "position", None)     # a ReaderError (a control character) has no mark
+    return text.count("\n", 0, position) + 1 if isinstance(position, int) else None
+
+
+def _error_text(exc: yaml.YAMLError) -> str:
+    if isinstance(exc, yaml.reader.ReaderError):
+        return f"character {exc.character!r} is not allowed in YAML ({exc.reason})" \
+            if isinstance(exc.character, str) else f"{exc.reason}"
+    return getattr(exc, "problem", None) or str(exc).splitlines()[0]
+
+
+def _check_depth(text: str) -> None:
+    """Refuse nesting deeper than MAX_DEPTH before a composer recurses into it.
+
+    Block nesting needs a column per level, so depth <= longest line + flow brackets; only a
+    file where that bound is high pays for the event scan.
+    """
+    brackets = text.count("[") + text.count("{")
+    if brackets + max(map(len, text.splitlines()), default=0) <= MAX_DEPTH:
+        return
+    depth = 0
+    for event in yaml.parse(text, Loader=_Composer):
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise yaml.MarkedYAMLError(problem=f"nested more than {MAX_DEPTH} levels deep",
+                                           problem_mark=event.start_mark)
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1
+
+
+def _check_expansion(root: yaml.Node, path: str) -> None:
+    """Refuse a document whose aliases expand it beyond its budget, at the line that overflows.
+
+    Each distinct node's expanded size is computed once (bottom-up, memoized), so a
+    billion-laughs file is refused in microseconds and nothing is ever expanded.
+    """
+    sizes: dict[int, int] = {}
+    order = _postorder(root, path)
+    budget = max(MIN_BUDGET, MAX_EXPANSION * len(order))
+    for node in order:
+        children = _children(node)
+        size = 1 + sum(sizes[id(c)] for c in children)
+        if size > budget:
+            raise InputError([Problem(path, node.start_mark.line + 1, "", (
+                f"aliases here expand to over {budget} values: refused as an alias bomb; "
+                "write the values out or use fewer nested aliases"))])
+        sizes[id(node)] = size
+
+
+def _postorder(root: yaml.Node, path: str) -> list[yaml.Node]:
+    """Every distinct node once, children before parents, without recursion; an alias inside
+    its own anchor (`a: &a [*a]`, a structure that contains itself) is refused at its line."""
+    state: dict[int, int] = {}          # 1: its children are being visited, 2: done
+    out: list[yaml.Node] = []
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, expanded = stack.pop()
+        if expanded:
+            state[id(node)] = 2
+            out.append(node)
+            continue
+        if id(node) in state:
+            continue
+        state[id(node)] = 1
+        stack.append((node, True))
+        for child in _children(node):
+            if state.get(id(child)) == 1:
+                raise InputError([Problem(path, child.start_mark.line + 1, "", (
+                    "an alias refers to the anchor it is inside of (a structure that contains itself): "
+                    "write the values out"))])
+            if id(child) not in state:
+                stack.append((child, False))
+    return out
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    return []
+
+
+def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: str, c: _Constructor,
+           duplicates: list[Problem] | None = None) -> Any:
+    lines.setdefault(keypath, node.start_mark.line + 1)
+    if not isinstance(node, yaml.ScalarNode) and node.tag not in _COLLECTION_TAGS:
+        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
+                                  f"unsupported YAML tag {node.tag!r}: write a plain list or mapping")])
+    if isinstance(node, yaml.MappingNode):
+        return _build_mapping(node, keypath, lines, path, c, duplicates)
+    if isinstance(node, yaml.SequenceNode):
+        return [_build(item, keypath + (i,), lines, path, c, duplicates) for i, item in enumerate(node.value)]
+    try:
+        return c.construct_object(node, deep=True)
+    except yaml.YAMLError as exc:
+        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
+                                  f"invalid value: {_error_text(exc)}")]) from exc
+    except ValueError as exc:   # an integer of over 4,300 digits (Python's own bound)
+        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
+                                  f"invalid value: {str(exc)[:120]}")]) from exc
+
+
+def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath, int], path: str,
+                   c: _Constructor, duplicates: list[Problem] | None) -> dict:
+    try:
+        c.flatten_mapping(node)  # resolves `<<: *anchor` merges
+    except yaml.YAMLError as exc:
+        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
+                                  f"invalid merge: {_error_text(exc)}")]) from exc
     out: dict[Any, Any] = {}
     for key_node, value_node in node.value:
-        key = loader.construct_object(key_node, deep=True)
+        if not isinstance(key_node, yaml.ScalarNode):
+            raise InputError([Problem(path, key_node.start_mark.line + 1, dotted(keypath),
+                                      "a mapping key must be a plain value, not a list or mapping")])
+        key = c.construct_object(key_node, deep=True)
         child = keypath + (key,)
         if key in out:
-            raise InputError([Problem(path, key_node.start_mark.line + 1, dotted(child),
-                                      "duplicate key: it is defined twice in the same mapping; keep one")])
+            then = "keep one" if duplicates is None else "the last one is used, as in Ansible; keep one"
+            duplicate = Problem(path, key_node.start_mark.line + 1, dotted(child),
+                                f"duplicate key: it is defined twice in the same mapping; {then}",
+                                severity="error" if duplicates is None else "warning")
+            if duplicates is None:
+                raise InputError([duplicate])
+            duplicates.append(duplicate)
         lines[child] = key_node.start_mark.line + 1
-        out[key] = _build(value_node, child, lines, path)
+        out[key] = _build(value_node, child, lines, path, c, duplicates)
     return out

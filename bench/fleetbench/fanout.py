@@ -228,7 +228,8 @@ def settle(timeout: float = 60.0) -> None:
     deadline = time.monotonic() + timeout
     while True:
         ids = timed(["docker", "ps", "-q", "--filter", f"label=com.docker.compose.project={PROJECT}"]).stdout.split()
-        states = timed(["docker", "inspect", "--format", "{{.State.Health.Status}}", *ids]).stdout.split() if ids else []
+        states = (timed(["docker", "inspect", "--format", "{{.State.Health.Status}}", *ids]).stdout.split()
+                  if ids else [])
         if states and all(s == "healthy" for s in states):
             return
         if time.monotonic() > deadline:

@@ -12,7 +12,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from fleetbench.scenarios import SCENARIOS, TITLES, Measure
+from fleetbench.scenarios import SCENARIOS, SSH_FLOOR, TITLES, Measure
 
 BEGIN, END = "<!-- fleet_bench:begin -->", "<!-- fleet_bench:end -->"
 
@@ -77,13 +77,26 @@ def overhead(measures: Sequence[Measure]) -> float | None:
 def fleet_section(rounds: Mapping[str, Sequence[Mapping[str, Measure]]]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for scenario in SCENARIOS:
+        if not any(scenario in r for series in rounds.values() for r in series):
+            continue     # not selected (--scenarios)
         ours = [r[scenario] for r in rounds.get("rosdeploy", ())]
         theirs = [r[scenario] for r in rounds.get("ansible", ())]
+        minimal = [r[scenario] for r in rounds.get("ansible-minimal", ())]
         entry = {"title": TITLES[scenario],
                  "rosdeploy": [round(m.seconds, 3) for m in ours], "ansible": [round(m.seconds, 3) for m in theirs],
+                 "ansible_minimal": [round(m.seconds, 3) for m in minimal],
                  "rosdeploy_median": _r(median(m.seconds for m in ours)),
-                 "ansible_median": _r(median(m.seconds for m in theirs))}
+                 "ansible_median": _r(median(m.seconds for m in theirs)),
+                 "ansible_minimal_median": _r(median(m.seconds for m in minimal))}
         entry["speedup"] = _r(speedup(entry["rosdeploy_median"], entry["ansible_median"]), 2)
+        floor = [r[scenario] for r in rounds.get(SSH_FLOOR, ()) if scenario in r]
+        if floor:
+            entry["ssh_floor"] = [round(m.seconds, 3) for m in floor]
+            entry["ssh_floor_median"] = _r(median(m.seconds for m in floor))
+            entry["above_ssh_floor"] = _r(entry["rosdeploy_median"] - entry["ssh_floor_median"])
+        # Issue #19 states its targets as rosdeploy's time over the minimal playbook's.
+        entry["ratio_minimal"] = _r(speedup(entry["ansible_minimal_median"], entry["rosdeploy_median"]), 2)
+        entry["ratio_equal_work"] = _r(speedup(entry["ansible_median"], entry["rosdeploy_median"]), 2)
         entry["rosdeploy_steps"] = step_medians(ours)
         entry["rosdeploy_overhead"] = _r(overhead(ours))
         out[scenario] = entry
@@ -148,17 +161,18 @@ def _r(value: float | None, digits: int = 3) -> float | None:
 def table_rows(results: Mapping[str, Any]) -> list[tuple[str, str, str, str]]:
     rows = []
     robots = results["config"]["robots"]
-    for scenario, entry in results.get("fleet", {}).items():
+    for entry in results.get("fleet", {}).values():
         rows.append((f"{entry['title']} ({robots} robots)", _s(entry["rosdeploy_median"]),
-                     _s(entry["ansible_median"]), _x(entry["speedup"])))
+                     _s(entry["ansible_median"]), _x(entry["speedup"]),
+                     _s(entry.get("ansible_minimal_median")), _f(entry.get("ratio_minimal"))))
     fan = results.get("fanout", {})
     for n in fan.get("sizes", []):
         first, status = _get(fan, "status_first", n), _get(fan, "status", n)
         ours, theirs = _get(fan, "rosdeploy_noop", n), _get(fan, "ansible_noop", n)
-        rows.append((f"fan-out: status, {n} targets, connecting", _s(first.get("median")), "—", ""))
-        rows.append((f"fan-out: status, {n} targets, connections held", _s(status.get("median")), "—", ""))
+        rows.append((f"fan-out: status, {n} targets, connecting", _s(first.get("median")), "—", "", "", ""))
+        rows.append((f"fan-out: status, {n} targets, connections held", _s(status.get("median")), "—", "", "", ""))
         rows.append((f"fan-out: no-op apply, {n} targets", _s(ours.get("median")), _s(theirs.get("median")),
-                     _x(speedup(ours.get("median"), theirs.get("median")))))
+                     _x(speedup(ours.get("median"), theirs.get("median"))), "", ""))
     return rows
 
 
@@ -180,13 +194,18 @@ def _s(value: float | None) -> str:
     return f"{value:.2f} s" if value is not None else "—"
 
 
+def _f(value: float | None) -> str:
+    return f"{value:.2f}" if value is not None else "—"
+
+
 def _x(value: float | None) -> str:
     return f"{value:.1f}×" if value is not None else "—"
 
 
 def text_table(rows: Sequence[tuple[str, ...]], header: Sequence[str]) -> str:
     widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
-    lines = ["  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(r, widths)))
+    lines = ["  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w)
+                       for i, (c, w) in enumerate(zip(r, widths, strict=False)))
              for r in [header, *rows]]
     return "\n".join([lines[0], "-" * len(lines[0]), *lines[1:]])
 
@@ -197,7 +216,8 @@ def markdown_table(rows: Sequence[tuple[str, ...]], header: Sequence[str]) -> st
     return "\n".join(lines)
 
 
-HEADER = ("scenario", "rosdeploy (median)", "Ansible (median)", "speedup")
+HEADER = ("scenario", "rosdeploy (median)", "Ansible, equal work (median)", "speedup",
+          "Ansible, minimal (median)", "rosdeploy ÷ minimal")
 
 
 def goal_lines(results: Mapping[str, Any]) -> list[str]:
@@ -238,9 +258,9 @@ def carry_over(results: dict[str, Any], folder: Path) -> None:
             results.setdefault("carried_over", {})[part] = origin
 
 
-def save_json(results: Mapping[str, Any], folder: Path) -> Path:
+def save_json(results: Mapping[str, Any], folder: Path, suffix: str = "") -> Path:
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"fleet-{results['date'][:10]}.json"
+    path = folder / f"fleet-{results['date'][:10]}{suffix}.json"
     path.write_text(json.dumps(results, indent=1, sort_keys=False) + "\n")
     return path
 

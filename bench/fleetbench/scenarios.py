@@ -19,6 +19,7 @@ from fleetbench import ansible as ans
 from fleetbench.proc import BenchError, check, expect, rosdeploy_argv, timed
 
 FIRST, UPGRADE, BAD = "1.0.0", "1.1.0", "1.2.0-bad"
+SSH_FLOOR = "ssh-floor"     # rounds' key for the parallel `ssh true` floor (no-op scenario only)
 SCENARIOS = ("first_deploy", "noop", "upgrade", "bad_release", "rollback")
 TITLES = {
     "first_deploy": "first deploy 1.0.0, clean robots",
@@ -30,11 +31,13 @@ TITLES = {
 KEEPER = "fleet-bench/layers:keep"
 # Keep the demo images' layers on a robot under a local tag, then drop every demo
 # tag: each round's pulls then fetch manifests (and any layer a tag adds), the same
-# in every round, instead of 120 MB in round 1 and nothing after.
+# in every round, instead of 120 MB in round 1 and nothing after. Untagged (`<none>`)
+# images other runs left are not names `docker rmi` takes: skipped.
 UNTAG_SCRIPT = r'''
 reg=$1
-docker image inspect "$2" >/dev/null 2>&1 || { docker pull -q "$reg/demo/driver:1.0.0" >/dev/null && docker tag "$reg/demo/driver:1.0.0" "$2"; }
-tags=$(docker images --format '{{.Repository}}:{{.Tag}}' | grep "^$reg/demo/" || true)
+docker image inspect "$2" >/dev/null 2>&1 ||
+    { docker pull -q "$reg/demo/driver:1.0.0" >/dev/null && docker tag "$reg/demo/driver:1.0.0" "$2"; }
+tags=$(docker images --format '{{.Repository}}:{{.Tag}}' | grep "^$reg/demo/" | grep -v ':<none>$' || true)
 [ -z "$tags" ] || docker rmi $tags >/dev/null
 '''
 
@@ -50,6 +53,7 @@ class SimBench:
     runner: ans.Ansible
     extra: Mapping[str, Any]        # Ansible extra vars shared by every play
     env: Mapping[str, str] = field(default_factory=dict)
+    ssh: tuple[tuple[str, ...], ...] = ()     # per robot: `ssh ... robot@host true`
 
     @property
     def limit(self) -> str:
@@ -136,22 +140,63 @@ def outcomes(measure: Measure) -> set[str]:
     return {h["outcome"] for h in measure.steps}
 
 
-def rosdeploy_round(bench: SimBench) -> dict[str, Measure]:
+# One step per scenario, in SCENARIOS order; each step checks what the robots run after it.
+# `state` carries what a later step compares with (the no-op's container ids).
+Step = Callable[[SimBench, dict], Measure]
+
+
+def run_chain(bench: SimBench, steps: Mapping[str, Step], selected: Sequence[str]) -> dict[str, Measure]:
+    """From clean robots, run the steps up to the last selected scenario (the earlier ones
+    bring the robots to the state it starts from) and keep the selected ones' measures."""
+    last = max(SCENARIOS.index(s) for s in selected)
     reset(bench)
-    got: dict[str, Measure] = {}
-    got["first_deploy"] = rosdeploy(bench, "apply", "--version", FIRST, codes=[0], what="rosdeploy first deploy")
-    before = verify(bench, FIRST, "rosdeploy first deploy")
-    got["noop"] = rosdeploy(bench, "apply", "--version", FIRST, codes=[0], what="rosdeploy no-op")
-    if outcomes(got["noop"]) != {"unchanged"}:
-        raise BenchError(f"rosdeploy no-op re-apply did something: {outcomes(got['noop'])}")
-    same_containers(before, verify(bench, FIRST, "rosdeploy no-op"), "rosdeploy no-op")
-    got["upgrade"] = rosdeploy(bench, "apply", "--version", UPGRADE, codes=[0], what="rosdeploy upgrade")
+    state: dict = {}
+    got = {}
+    for scenario in SCENARIOS[:last + 1]:
+        measure = steps[scenario](bench, state)
+        if scenario in selected:
+            got[scenario] = measure
+    return got
+
+
+def _rd_first(bench: SimBench, state: dict) -> Measure:
+    got = rosdeploy(bench, "apply", "--version", FIRST, codes=[0], what="rosdeploy first deploy")
+    state["before"] = verify(bench, FIRST, "rosdeploy first deploy")
+    return got
+
+
+def _rd_noop(bench: SimBench, state: dict) -> Measure:
+    got = rosdeploy(bench, "apply", "--version", FIRST, codes=[0], what="rosdeploy no-op")
+    if outcomes(got) != {"unchanged"}:
+        raise BenchError(f"rosdeploy no-op re-apply did something: {outcomes(got)}")
+    same_containers(state["before"], verify(bench, FIRST, "rosdeploy no-op"), "rosdeploy no-op")
+    return got
+
+
+def _rd_upgrade(bench: SimBench, state: dict) -> Measure:
+    got = rosdeploy(bench, "apply", "--version", UPGRADE, codes=[0], what="rosdeploy upgrade")
     verify(bench, UPGRADE, "rosdeploy upgrade")
-    got["bad_release"] = rosdeploy(bench, "apply", "--version", BAD, codes=[3, 4], what="rosdeploy bad release")
+    return got
+
+
+def _rd_bad(bench: SimBench, state: dict) -> Measure:
+    got = rosdeploy(bench, "apply", "--version", BAD, codes=[3, 4], what="rosdeploy bad release")
     verify(bench, UPGRADE, "rosdeploy bad release (must be back on 1.1.0)")
-    got["rollback"] = rosdeploy(bench, "rollback", codes=[0], what="rosdeploy rollback")
+    return got
+
+
+def _rd_rollback(bench: SimBench, state: dict) -> Measure:
+    got = rosdeploy(bench, "rollback", codes=[0], what="rosdeploy rollback")
     verify(bench, FIRST, "rosdeploy emergency rollback")
     return got
+
+
+ROSDEPLOY_STEPS: dict[str, Step] = {"first_deploy": _rd_first, "noop": _rd_noop, "upgrade": _rd_upgrade,
+                                    "bad_release": _rd_bad, "rollback": _rd_rollback}
+
+
+def rosdeploy_round(bench: SimBench, selected: Sequence[str] = SCENARIOS) -> dict[str, Measure]:
+    return run_chain(bench, ROSDEPLOY_STEPS, selected)
 
 
 # ----------------------------------------------------------------- Ansible
@@ -170,27 +215,55 @@ def policy_vars(fleet: Mapping[str, Any]) -> dict[str, Any]:
     return {"waves": waves, "max_fail_percentage": percent}
 
 
-def play(bench: SimBench, version: str, codes: Sequence[int], what: str, **extra: Any) -> Measure:
+def play(bench: SimBench, version: str, codes: Sequence[int], what: str, playbook: str = "deploy.yml",
+         **extra: Any) -> Measure:
     result = ans.require(bench.runner.play({**bench.extra, "version": version, **extra},
-                                           forks=max(len(bench.robots), 5), limit=bench.limit), codes, what)
+                                           forks=max(len(bench.robots), 5), limit=bench.limit, playbook=playbook),
+                         codes, what)
     return Measure(result.seconds)
 
 
-def ansible_round(bench: SimBench) -> dict[str, Measure]:
-    reset(bench)
-    got: dict[str, Measure] = {}
-    got["first_deploy"] = play(bench, FIRST, [0], "Ansible first deploy")
-    before = verify(bench, FIRST, "Ansible first deploy")
-    got["noop"] = play(bench, FIRST, [0], "Ansible no-op")
-    same_containers(before, verify(bench, FIRST, "Ansible no-op"), "Ansible no-op")
-    got["upgrade"] = play(bench, UPGRADE, [0], "Ansible upgrade")
-    verify(bench, UPGRADE, "Ansible upgrade")
-    got["bad_release"] = play(bench, BAD, [2], "Ansible bad release")
-    verify(bench, UPGRADE, "Ansible bad release (must be back on 1.1.0)")
-    # An emergency: every robot at once, like `rosdeploy rollback` (no canary wave).
-    got["rollback"] = play(bench, FIRST, [0], "Ansible redeploy of the old version", waves=["100%"])
-    verify(bench, FIRST, "Ansible redeploy of the old version")
-    return got
+def ansible_steps(playbook: str, name: str) -> dict[str, Step]:
+    """deploy.yml (equal work: release dirs, health check, rescue) or minimal.yml (template,
+    pull, up --wait; a bad release is detected, not rolled back)."""
+    minimal = playbook == "minimal.yml"
+
+    def first(bench: SimBench, state: dict) -> Measure:
+        got = play(bench, FIRST, [0], f"{name} first deploy", playbook)
+        state["before"] = verify(bench, FIRST, f"{name} first deploy")
+        return got
+
+    def noop(bench: SimBench, state: dict) -> Measure:
+        got = play(bench, FIRST, [0], f"{name} no-op", playbook)
+        same_containers(state["before"], verify(bench, FIRST, f"{name} no-op"), f"{name} no-op")
+        return got
+
+    def upgrade(bench: SimBench, state: dict) -> Measure:
+        got = play(bench, UPGRADE, [0], f"{name} upgrade", playbook)
+        verify(bench, UPGRADE, f"{name} upgrade")
+        return got
+
+    def bad(bench: SimBench, state: dict) -> Measure:
+        got = play(bench, BAD, [2], f"{name} bad release", playbook)
+        if not minimal:     # the minimal playbook only detects: the bad release stays
+            verify(bench, UPGRADE, f"{name} bad release (must be back on 1.1.0)")
+        return got
+
+    def rollback(bench: SimBench, state: dict) -> Measure:
+        # An emergency: every robot at once, like `rosdeploy rollback` (no canary wave).
+        got = play(bench, FIRST, [0], f"{name} redeploy of the old version", playbook, waves=["100%"])
+        verify(bench, FIRST, f"{name} redeploy of the old version")
+        return got
+
+    return {"first_deploy": first, "noop": noop, "upgrade": upgrade, "bad_release": bad, "rollback": rollback}
+
+
+def ansible_round(bench: SimBench, selected: Sequence[str] = SCENARIOS) -> dict[str, Measure]:
+    return run_chain(bench, ansible_steps("deploy.yml", "Ansible"), selected)
+
+
+def ansible_minimal_round(bench: SimBench, selected: Sequence[str] = SCENARIOS) -> dict[str, Measure]:
+    return run_chain(bench, ansible_steps("minimal.yml", "Ansible minimal"), selected)
 
 
 def render_versions(fleet: Path, inventory: Path, out: Path, versions: Sequence[str]) -> Path:
@@ -201,5 +274,6 @@ def render_versions(fleet: Path, inventory: Path, out: Path, versions: Sequence[
     return out
 
 
-Round = Callable[[SimBench], dict[str, Measure]]
-TOOLS: dict[str, Round] = {"rosdeploy": rosdeploy_round, "ansible": ansible_round}
+Round = Callable[[SimBench, Sequence[str]], dict[str, Measure]]
+TOOLS: dict[str, Round] = {"rosdeploy": rosdeploy_round, "ansible": ansible_round,
+                           "ansible-minimal": ansible_minimal_round}

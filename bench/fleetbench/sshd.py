@@ -143,7 +143,7 @@ class SshdFarm:
 
     def _wait_greeting(self, timeout: float) -> None:
         deadline = time.monotonic() + timeout
-        for target, proc in zip(self.targets, self.procs):
+        for target, proc in zip(self.targets, self.procs, strict=True):
             while not _greets(target.port):
                 if proc.poll() is not None or time.monotonic() > deadline:
                     raise BenchError(f"sshd for {target.name} on port {target.port} did not come up "

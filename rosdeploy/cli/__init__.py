@@ -1,57 +1,126 @@
 """`rosdeploy` command line: argument parsing and exit codes, no deploy logic.
 
-Each area registers its own subcommands (offline.py, sim.py, remote.py); a
-handler gets the parsed args and the Output and returns an exit code.
+Each area registers its own subcommands (offline.py, remote.py, sim.py, vault.py); a
+handler gets the parsed args and the Output and returns an exit code. Building the parser
+imports no SSH or crypto module: the handlers import what their command needs, so `--help`,
+`validate` and shell completion start in a blink.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import traceback
-from typing import Sequence
+from typing import Any, Sequence
 
 from rosdeploy import __version__
-from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, InputError, RosdeployError
+from rosdeploy.cli.common import EXIT_CODES, Parser, UsageError, add_command
+from rosdeploy.errors import (EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, InputError, Problem,
+                              RosdeployError)
 from rosdeploy.output import Output
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from rosdeploy.cli import offline, remote, sim, vault
+def build_parser() -> Parser:
+    from rosdeploy.cli import completion, offline, remote, sim, vault
 
-    parser = argparse.ArgumentParser(
-        prog="rosdeploy",
-        description="Declarative deployment of ROS 2 software to robot fleets.")
-    parser.add_argument("-V", "--rosdeploy-version", action="version", version=f"rosdeploy {__version__}")
-    parser.add_argument("--json", action="store_true", help="print one JSON document on stdout")
-    parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    parser = Parser(
+        prog="rosdeploy", root=True,
+        description="Declarative deployment of ROS 2 software to robot fleets.",
+        epilog="exit codes:\n" + "\n".join(f"  {code:>3}  {text}" for code, text in EXIT_CODES.items())
+               + "\n\n`rosdeploy COMMAND --help` shows a command's options, exit codes and an example.")
+    parser.add_argument("-V", "--version", action="version", version=f"rosdeploy {__version__}",
+                        help="print rosdeploy's version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in (offline, remote, sim, vault):
+    for module in (offline, remote, sim, vault, completion):
         module.register(sub)
+    version = add_command(sub, "version", "print rosdeploy's version", "Print rosdeploy's version.",
+                          (EXIT_OK, EXIT_INPUT), "rosdeploy version")
+    version.set_defaults(func=cmd_version)
     return parser
 
 
+def cmd_version(args: argparse.Namespace, out: Output) -> int:
+    if out.as_json:
+        out.document({"version": __version__})
+    else:
+        out.line(f"rosdeploy {__version__}")
+    return EXIT_OK
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    out = Output(as_json=getattr(args, "json", False))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except UsageError as exc:
+        # The options were not parsed: read the two that shape the error's form from argv.
+        out = Output(as_json="--json" in argv, color=_color_word(argv))
+        if not out.as_json:
+            out.note(exc.usage.rstrip())
+        return _fail(out, exc)
+    out = Output(as_json=args.json, color=args.color)
     try:
         return int(args.func(args, out) or 0)
-    except InputError as exc:
-        for problem in exc.problems:
-            out.error(f"error: {problem}")
-        return EXIT_INPUT
-    except RosdeployError as exc:
-        out.error(f"error: {exc}")
-        return exc.exit_code
-    except KeyboardInterrupt:
-        out.error("interrupted")
-        return EXIT_INTERRUPTED
     except BrokenPipeError:   # `rosdeploy plan ... | head`: the reader left, nothing is wrong
         sys.stderr.close()
         return EXIT_OK
-    except Exception:  # a bug: say so plainly, keep the traceback for the report
-        if args.debug:
+    except Exception as exc:
+        if args.debug and not isinstance(exc, RosdeployError):
             traceback.print_exc()
-        else:
-            out.error(f"internal error: {sys.exc_info()[1]!r} (run with --debug for the traceback)")
-        return EXIT_INTERNAL
+        return _fail(out, exc)
+    except KeyboardInterrupt as exc:
+        return _fail(out, exc)
+
+
+def _fail(out: Output, exc: BaseException) -> int:
+    """Report a failure on stderr and, with --json, as the run's one document on stdout."""
+    code, kind, problems = _classify(exc)
+    lines = [_text(p) for p in problems] or [_message(exc)]
+    for line in lines:
+        out.error(f"error: {line}" if kind in ("usage", "input", "error") else line)
+    if out.as_json and not out.documented:
+        out.document({"ok": False, "exit_code": code, "error": {
+            "kind": kind, "message": "\n".join(lines), "problems": [_problem_json(p) for p in problems]}})
+    return code
+
+
+def _classify(exc: BaseException) -> tuple[int, str, tuple[Problem, ...]]:
+    """Exit code, kind (usage, input, error, internal, interrupted) and the input problems."""
+    if isinstance(exc, KeyboardInterrupt):
+        return EXIT_INTERRUPTED, "interrupted", ()
+    if isinstance(exc, UsageError):
+        return EXIT_INPUT, "usage", ()
+    if isinstance(exc, InputError):
+        return EXIT_INPUT, "input", exc.problems
+    if isinstance(exc, RosdeployError):
+        return exc.exit_code, "error", ()
+    return EXIT_INTERNAL, "internal", ()
+
+
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted"
+    if isinstance(exc, UsageError):
+        return exc.message
+    if isinstance(exc, RosdeployError):
+        return str(exc)
+    return f"internal error: {exc!r} (run with --debug for the traceback)"
+
+
+def _text(p: Problem) -> str:
+    """A problem as one line; one without a file (a command-line problem) has no `file:` prefix."""
+    if p.file:
+        return str(p)
+    return f"{p.key}: {p.message}" if p.key else p.message
+
+
+def _problem_json(p: Problem) -> dict[str, Any]:
+    from rosdeploy.cli.offline import problem_json
+    return problem_json(p)
+
+
+def _color_word(argv: Sequence[str]) -> str:
+    for i, word in enumerate(argv):
+        if word.startswith("--color="):
+            return word.split("=", 1)[1]
+        if word == "--color" and i + 1 < len(argv):
+            return argv[i + 1]
+    return "auto"

@@ -1,7 +1,100 @@
-"""Arguments shared by several commands, so they read the same everywhere."""
+"""What every command shares: the parser class with the global options, the exit-code table
+rendered into each command's help, and the arguments several commands take."""
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, Any, NoReturn, Sequence
+
+from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
+                              EXIT_PARTIAL, InputError)
+
+if TYPE_CHECKING:
+    from rosdeploy.output import Output
+
+COLOR_MODES = ("auto", "always", "never")
+
+# The one table of exit codes: each command's epilog shows the rows that apply to it, the README
+# shows them all (tests/unit/test_cli.py checks both against this).
+EXIT_CODES: dict[int, str] = {
+    EXIT_OK: "success",
+    EXIT_INTERNAL: "internal error: a bug in rosdeploy (--debug shows the traceback)",
+    EXIT_INPUT: "input error: fleet file, inventory, template, vault or usage; nothing was touched",
+    EXIT_PARTIAL: "some robots failed, were rolled back, locked or unreachable (within max_fail)",
+    EXIT_ABORTED: "a wave exceeded max_fail: the rollout stopped, later waves skipped",
+    EXIT_DECLINED: "declined at the confirmation prompt: nothing was done",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C): robots mid-deploy finished or rolled back, locks released",
+}
+
+
+class UsageError(InputError):
+    """The command line itself is wrong (argparse's complaint), raised instead of argparse's exit
+    so that `--json` still gets its one document."""
+
+    def __init__(self, parser: argparse.ArgumentParser, message: str) -> None:
+        self.usage = parser.format_usage()
+        self.message = f"{parser.prog}: {message} (see `{parser.prog} --help`)"
+        super().__init__(self.message)
+
+
+class Parser(argparse.ArgumentParser):
+    """Every rosdeploy (sub)command's parser: the global options are accepted before and after
+    the subcommand, and a usage error is raised instead of exiting.
+
+    The root parser holds the defaults; a subcommand's copy defaults to SUPPRESS, or argparse
+    would reset `rosdeploy --json status F` to json=False when it parses `status F`."""
+
+    def __init__(self, *args: Any, root: bool = False, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
+        super().__init__(*args, **kwargs)
+        unset: Any = argparse.SUPPRESS
+        group = self.add_argument_group("global options (before or after the command)")
+        group.add_argument("--json", action="store_true", default=False if root else unset,
+                           help="print one JSON document on stdout, errors included")
+        group.add_argument("--debug", action="store_true", default=False if root else unset,
+                           help="show the traceback of an internal error")
+        group.add_argument("--color", choices=COLOR_MODES, default="auto" if root else unset, metavar="WHEN",
+                           help="colour: auto (per stream, when a terminal; NO_COLOR, FORCE_COLOR), "
+                                "always or never")
+
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(self, message)
+
+
+def epilog(codes: Sequence[int], example: str, meanings: dict[int, str] | None = None) -> str:
+    """The exit codes this command can return (from EXIT_CODES, or a command's own meaning of one)
+    and an example, below its options in --help."""
+    meanings = {**EXIT_CODES, **(meanings or {})}
+    rows = "\n".join(f"  {code:>3}  {meanings[code]}" for code in sorted(codes))
+    return f"exit codes:\n{rows}\n\nexample:\n  {example}"
+
+
+def add_command(sub: argparse._SubParsersAction, name: str, summary: str, description: str,
+                codes: Sequence[int], example: str, meanings: dict[int, str] | None = None) -> Parser:
+    """A subcommand with its one-line summary, its description, and its exit codes and example."""
+    parser: Parser = sub.add_parser(name, help=summary, description=description,
+                                    epilog=epilog(codes, example, meanings))
+    return parser
+
+
+def duration(text: str) -> float:
+    """`--pause 30s`, `--lock-wait 2m`: the fleet file's durations (plain numbers are seconds)."""
+    from rosdeploy.fleet import parse_duration   # here: the parser is built for every command
+
+    try:
+        return parse_duration(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"invalid duration {text!r}: use seconds or a duration like 30s, 2m, 1m30s, 500ms") from None
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of at least 1")
+    return value
 
 
 def add_fleet_args(parser: argparse.ArgumentParser, *, limit: bool = True, version: bool = True) -> None:
@@ -12,7 +105,17 @@ def add_fleet_args(parser: argparse.ArgumentParser, *, limit: bool = True, versi
         parser.add_argument("-l", "--limit", metavar="PATTERN",
                             help="robots to target, Ansible patterns: names, groups, globs, a:b, a:&b, a:!b")
     if version:
-        parser.add_argument("--version", dest="release_version", metavar="V",
+        parser.add_argument("--version", dest="release_version", metavar="VERSION",
                             help="release version (every image's tag; overrides the fleet file's `version`)")
-    parser.add_argument("--vault-password-file", metavar="FILE",
-                        help="file holding the vault password (or set ROSDEPLOY_VAULT_PASSWORD[_FILE])")
+    from rosdeploy.cli.vault import add_vault_options   # imported here: cli.vault imports this module
+    add_vault_options(parser)
+
+
+def inventory_targets(project: Any, limit: str | None, out: Output) -> tuple[Any, ...]:
+    """--limit's robots; the inventory's warnings and a pattern's unmatched terms are printed, as
+    Ansible prints its warnings (another tool's vars, duplicate keys, `web:nomatch`)."""
+    found: list[Any] = []
+    hosts = project.targets(limit, found)
+    for problem in (*project.inventory.warnings, *found):
+        out.warn(f"warning: {problem}")
+    return tuple(hosts)

@@ -10,49 +10,52 @@ import argparse
 import getpass
 import os
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
-from rosdeploy.cli.common import add_fleet_args
-from rosdeploy.errors import EXIT_INPUT, EXIT_OK, InputError, Problem
-from rosdeploy.model import Host, RenderedRelease
+from rosdeploy.cli.common import add_command, add_fleet_args, inventory_targets
+from rosdeploy.cli.vault import vault_from_args
+from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
 from rosdeploy.output import Output
+
+if TYPE_CHECKING:   # model.py costs 7 ms of dataclasses at import; --help needs none of it
+    from rosdeploy.model import Host, RenderedRelease
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("validate", help="check the fleet file and inventory; exit 2 on any error",
-                       description="Load the fleet file and inventory and run every error-level check. "
-                                   "Nothing is contacted.")
-    _common(p)
+    p = add_command(sub, "validate", "check the fleet file and inventory; exit 2 on any error",
+                    "Load the fleet file and inventory and run every error-level check. Nothing is contacted.",
+                    (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL),
+                    "rosdeploy validate playbooks/warehouse.yml "
+                    "--vault-password-file inventory/warehouse/.vault-password-example",
+                    {EXIT_OK: "deployable (warnings may be printed)"})
+    add_fleet_args(p)
     p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("render", help="write each robot's files into a folder, print their digests",
-                       description="Render compose.yml, .env, the DDS profile, logrotate and udev rules "
-                                   "into DIR/<robot>/ exactly as a deploy would upload them.")
-    _common(p)
+    p = add_command(sub, "render", "write each robot's files into a folder, print their digests",
+                    "Render compose.yml, .env, the DDS profile, logrotate and udev rules into DIR/<robot>/ "
+                    "exactly as a deploy would upload them. Nothing is contacted.",
+                    (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL), "rosdeploy render playbooks/demo.yml --out /tmp/rendered")
+    add_fleet_args(p)
     p.add_argument("-o", "--out", required=True, metavar="DIR", help="folder to write DIR/<robot>/<file> into")
     p.set_defaults(func=cmd_render)
 
-    p = sub.add_parser("check", help="run the deployment checklist; exit 2 if any error",
-                       description="Every rule of the ROS 2 deployment checklist over the fleet file, the "
-                                   "inventory and each robot's rendered files.")
-    _common(p)
-    p.set_defaults(func=cmd_check)
-
-
-def _common(p: argparse.ArgumentParser) -> None:
+    p = add_command(sub, "check", "run the deployment checklist; exit 2 if any error",
+                    "Every rule of the ROS 2 deployment checklist over the fleet file, the inventory and each "
+                    "robot's rendered files, each finding with its severity, rule and fix.",
+                    (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL), "rosdeploy check playbooks/demo.yml --limit robot1",
+                    {EXIT_OK: "no error-level finding (warnings and infos may be printed)",
+                     EXIT_INPUT: "an error-level finding, or an input error"})
     add_fleet_args(p)
-    # SUPPRESS: `rosdeploy --json check F` and `rosdeploy check F --json` both work.
-    p.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="print one JSON document")
+    p.set_defaults(func=cmd_check)
 
 
 def _load(args: argparse.Namespace, out: Output) -> tuple[Any, tuple[Host, ...]]:
     from rosdeploy.project import load_project
 
     project = load_project(args.fleet, inventory=args.inventory, version=args.release_version,
-                           vault_password_file=args.vault_password_file,
-                           prompt=getpass.getpass if out.interactive else None)
+                           vault=vault_from_args(args, getpass.getpass if out.interactive else None))
     out.mask(project.secret_values)
-    return project, project.targets(args.limit)
+    return project, inventory_targets(project, args.limit, out)
 
 
 # ---------------------------------------------------------------- validate
@@ -97,7 +100,8 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
     root = Path(args.out)
     written = [write_release(root / name, release) for name, release in releases.items()]
     if out.as_json:
-        out.document({"out": str(root), "robots": [_release_json(r, d) for r, d in zip(releases.values(), written)]})
+        robots = [_release_json(r, d) for r, d in zip(releases.values(), written, strict=True)]
+        out.document({"out": str(root), "robots": robots})
         return EXIT_OK
     out.table(["ROBOT", "RELEASE", "DIGEST", "FILES"],
               [(r.host, r.release_id, r.digest[:16], len(r.files)) for r in releases.values()])

@@ -1,79 +1,116 @@
-"""Commands that talk to robots: apply, plan, status, rollback, history."""
+"""Commands that talk to robots: apply, plan, status, rollback, history, connections.
+
+The SSH stack (paramiko, fabric, the keeper) is imported by the handlers, not here: every
+command builds this parser, and `--help` or `validate` must not pay for it.
+"""
 from __future__ import annotations
 
 import argparse
 import getpass
 from dataclasses import replace
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
-from rosdeploy import keeper, runlog
-from rosdeploy.cli import report
-from rosdeploy.cli.common import add_fleet_args
-from rosdeploy.deploy import RunContext
-from rosdeploy.keeper import kept_connect
-from rosdeploy.errors import EXIT_ABORTED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, EXIT_PARTIAL, InputError
-from rosdeploy.model import Host, RolloutPolicy
+from rosdeploy.cli.common import Parser, add_command, add_fleet_args, duration, inventory_targets, positive_int
+from rosdeploy.cli.vault import vault_from_args
+from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
+                              EXIT_PARTIAL, InputError)
 from rosdeploy.output import Output, confirm
-from rosdeploy.project import gate, load_project, prepare
-from rosdeploy.rollout import apply_fleet, parallel, rollback_fleet
-from rosdeploy.transport import SSHOptions, local_user_at_host
-from rosdeploy.views import history_host, plan_host, status_host
+
+if TYPE_CHECKING:   # model.py costs 7 ms of dataclasses at import; --help needs none of it
+    from rosdeploy.model import Host, RolloutPolicy
+    from rosdeploy.deploy import RunContext
+    from rosdeploy.model import FleetSpec
+    from rosdeploy.results import FleetResult
+
+RUN_CODES = (EXIT_OK, EXIT_PARTIAL, EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED)
+READ_CODES = (EXIT_OK, EXIT_PARTIAL, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("apply", help="deploy the fleet file's release to the targeted robots")
+    p = add_command(sub, "apply", "deploy the fleet file's release to the targeted robots",
+                    "Render each robot's release, then per robot and in waves: lock, pull the images while the "
+                    "old release runs, upload, start, health gate (containers, restarts, ROS topics and rates), "
+                    "activate, or roll back to the previous release. Asks before it starts unless --yes.",
+                    RUN_CODES, "rosdeploy apply playbooks/demo.yml --limit robot2 --version 1.1.0 --yes",
+                    {EXIT_OK: "every targeted robot runs the release, healthy"})
     add_fleet_args(p)
     _add_run_args(p)
-    p.add_argument("--forks", type=int, help="robots deployed in parallel within a wave")
-    p.add_argument("--waves", help='comma-separated cumulative wave targets, e.g. "1,10%%,50%%,100%%"')
-    p.add_argument("--max-fail", help="failures (count or N%%) tolerated per wave before the rollout stops")
-    p.add_argument("--order-by", help="inventory group prefix to order robots by, e.g. site_")
-    p.add_argument("--pause", type=float, help="seconds to wait between waves")
+    p.add_argument("--forks", type=positive_int, metavar="N", help="robots deployed in parallel within a wave")
+    p.add_argument("--waves", metavar="LIST",
+                   help='comma-separated cumulative wave targets, e.g. "1,10%%,50%%,100%%"')
+    p.add_argument("--max-fail", metavar="LIMIT",
+                   help="failures tolerated per wave before the rollout stops: a count, or a percent like 10%%")
+    p.add_argument("--order-by", metavar="PREFIX", help="inventory group prefix to order robots by, e.g. site_")
+    p.add_argument("--pause", type=duration, metavar="DURATION",
+                   help="wait between waves: seconds or 30s, 2m, 1m30s (overrides rollout.pause)")
     p.add_argument("--step", action="store_true", help="ask before every wave after the first")
     p.set_defaults(func=cmd_apply)
 
-    p = sub.add_parser("plan", help="show what apply would do, changing nothing")
+    p = add_command(sub, "plan", "show what apply would do, changing nothing",
+                    "Per robot: up to date, or the file diffs (secrets masked), the images to pull and the "
+                    "preflight problems. Reads the robots, changes nothing.",
+                    READ_CODES, "rosdeploy plan playbooks/demo.yml --version 1.1.0",
+                    {EXIT_OK: "every robot reachable and no preflight problem",
+                     EXIT_PARTIAL: "a robot unreachable or a preflight problem"})
     add_fleet_args(p)
     p.set_defaults(func=cmd_plan)
 
-    p = sub.add_parser("status", help="the fleet's state: release, drift, services, health")
+    p = add_command(sub, "status", "the fleet's state: release, drift, services, health",
+                    "Per robot: reachable, running release, drift from what the fleet file renders, each "
+                    "service's state and health, and the last deploy and by whom. Changes nothing.",
+                    READ_CODES, "rosdeploy status playbooks/demo.yml --json",
+                    {EXIT_OK: "every robot reachable, healthy and in sync",
+                     EXIT_PARTIAL: "a robot unreachable, unhealthy, locked or drifted"})
     add_fleet_args(p)
     p.set_defaults(func=cmd_status)
 
-    p = sub.add_parser("rollback", help="emergency brake: switch robots to their previous release, no pull")
+    p = add_command(sub, "rollback", "emergency brake: switch robots to their previous release, no pull",
+                    "Switch each robot to the release it ran before (or --to VERSION), from what is kept on "
+                    "the robot: no render, no registry. Asks before it starts unless --yes.",
+                    RUN_CODES[:2] + RUN_CODES[3:], "rosdeploy rollback playbooks/demo.yml --yes",
+                    {EXIT_OK: "every targeted robot runs the release rolled back to, healthy",
+                     EXIT_PARTIAL: "the rollback failed on some robot"})
     add_fleet_args(p, version=False)
     _add_run_args(p)
     p.add_argument("--to", metavar="VERSION", help="a kept version to switch to instead of the previous one")
-    p.add_argument("--forks", type=int, help="robots rolled back in parallel (default: all at once)")
+    p.add_argument("--forks", type=positive_int, metavar="N",
+                   help="robots rolled back in parallel (default: all at once)")
     p.set_defaults(func=cmd_rollback)
 
-    p = sub.add_parser("history", help="each robot's deploy history, newest first")
+    p = add_command(sub, "history", "each robot's deploy history, newest first",
+                    "Each robot's deploys and rollbacks, newest first: time, event, release, result, by whom.",
+                    READ_CODES, "rosdeploy history playbooks/demo.yml -n 3",
+                    {EXIT_PARTIAL: "a robot unreachable"})
     add_fleet_args(p, version=False)
-    p.add_argument("-n", type=int, default=10, help="entries per robot")
+    p.add_argument("-n", type=positive_int, default=10, metavar="N", help="entries per robot (default 10)")
     p.set_defaults(func=cmd_history)
 
-    p = sub.add_parser("connections", help="SSH connections held for status/plan/history (ssh.persist)")
+    p = add_command(sub, "connections", "SSH connections held for status/plan/history (ssh.persist)",
+                    "List the SSH connections the keeper holds for status, plan and history, or close them.",
+                    (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL), "rosdeploy connections --close")
     p.add_argument("--close", action="store_true", help="close them all now and stop the keeper")
     p.set_defaults(func=cmd_connections)
 
 
-def _add_run_args(p: argparse.ArgumentParser) -> None:
+def _add_run_args(p: Parser) -> None:
     p.add_argument("-y", "--yes", action="store_true", help="do not ask for confirmation")
-    p.add_argument("--lock-wait", type=float, default=0.0, metavar="SECONDS",
-                   help="wait this long for a robot's lock held by another run (default: fail at once)")
+    p.add_argument("--lock-wait", type=duration, default=0.0, metavar="DURATION",
+                   help="wait this long for a robot's lock held by another run: seconds or 30s, 2m "
+                        "(default: fail at once)")
     p.add_argument("--break-lock", action="store_true", help="remove a stale lock left by a dead run")
 
 
 # ----------------------------------------------------------------- loading
 
-def load(args: argparse.Namespace, out: Output, render: bool = True):
+def load(args: argparse.Namespace, out: Output, render: bool = True) -> tuple[Any, tuple[Host, ...], dict]:
     """Fleet file + inventory + targets (+ releases), validated: input errors stop here, before any robot.
     `render=False` (rollback): the releases kept on the robots are what runs, so neither the time
     to render nor a template error in what would be deployed next may hold up going back."""
+    from rosdeploy.project import gate, load_project, prepare
+
     project = load_project(args.fleet, inventory=args.inventory, version=getattr(args, "release_version", None),
-                           vault_password_file=args.vault_password_file,
-                           prompt=getpass.getpass if out.interactive else None)
-    hosts = project.targets(args.limit)
+                           vault=vault_from_args(args, getpass.getpass if out.interactive else None))
+    hosts = inventory_targets(project, args.limit, out)
     out.mask(project.secret_values)
     if not render:
         return project, hosts, {}
@@ -87,7 +124,11 @@ def load(args: argparse.Namespace, out: Output, render: bool = True):
     return project, hosts, releases
 
 
-def context(args: argparse.Namespace, spec, progress: Callable[[str, str], None]) -> RunContext:
+def context(args: argparse.Namespace, spec: FleetSpec, progress: Callable[[str, str], None]) -> RunContext:
+    from rosdeploy import runlog
+    from rosdeploy.deploy import RunContext
+    from rosdeploy.transport import SSHOptions, local_user_at_host
+
     ssh = SSHOptions(known_hosts=spec.known_hosts, ssh_config=spec.ssh_config,
                      connect_timeout=spec.connect_timeout, command_timeout=spec.command_timeout)
     return RunContext(spec=spec, ssh=ssh, run_id=runlog.new_run_id(), operator=local_user_at_host(),
@@ -106,11 +147,14 @@ def _confirmed(args: argparse.Namespace, out: Output, question: str) -> bool:
 # ---------------------------------------------------------------- commands
 
 def cmd_apply(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy.cli import report
+    from rosdeploy.rollout import apply_fleet
+
     project, hosts, releases = load(args, out)
     spec = project.spec
     policy = _policy(spec.rollout, args)
     if not _confirmed(args, out, f"Deploy {spec.project} {spec.version} to {len(hosts)} robot(s)?"):
-        return EXIT_INPUT
+        return _declined(out)
     with report.progress_view(out, [h.name for h in hosts]) as view:
         ctx = context(args, spec, view.progress)
         result = apply_fleet(ctx, hosts, releases, policy, report.rollout_notifier(out, args, view))
@@ -133,17 +177,28 @@ def _policy(policy: RolloutPolicy, args: argparse.Namespace) -> RolloutPolicy:
 
 
 def cmd_rollback(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy.cli import report
+    from rosdeploy.rollout import rollback_fleet
+
     project, hosts, _ = load(args, out, render=False)
     target = args.to or "their previous release"
     if not _confirmed(args, out, f"Roll back {len(hosts)} robot(s) to {target}?"):
-        return EXIT_INPUT
+        return _declined(out)
     with report.progress_view(out, [h.name for h in hosts]) as view:
         ctx = context(args, project.spec, view.progress)
         result = rollback_fleet(ctx, hosts, args.forks or max(len(hosts), 1), to_version=args.to)
     return _finish(out, result)
 
 
-def _finish(out: Output, result) -> int:
+def _declined(out: Output) -> int:
+    out.error("declined: nothing was done")
+    return EXIT_DECLINED
+
+
+def _finish(out: Output, result: FleetResult) -> int:
+    from rosdeploy import runlog
+    from rosdeploy.cli import report
+
     folder = runlog.save(result, out.masked)
     report.summary(out, result, folder)
     if result.interrupted:
@@ -154,6 +209,9 @@ def _finish(out: Output, result) -> int:
 
 
 def cmd_status(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy.cli import report
+    from rosdeploy.views import status_host
+
     project, hosts, releases = load(args, out)
     rows = _each(args, project.spec, hosts, lambda ctx, h: status_host(ctx, h, releases.get(h.name)))
     report.status(out, rows)
@@ -161,6 +219,9 @@ def cmd_status(args: argparse.Namespace, out: Output) -> int:
 
 
 def cmd_plan(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy.cli import report
+    from rosdeploy.views import plan_host
+
     project, hosts, releases = load(args, out)
     rows = _each(args, project.spec, hosts, lambda ctx, h: plan_host(ctx, h, releases[h.name]))
     report.plan(out, rows)
@@ -168,14 +229,21 @@ def cmd_plan(args: argparse.Namespace, out: Output) -> int:
 
 
 def cmd_history(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy.cli import report
+    from rosdeploy.views import history_host
+
     project, hosts, _ = load(args, out)
     rows = _each(args, project.spec, hosts, lambda ctx, h: (h.name, *history_host(ctx, h)))
     report.history(out, rows, args.n)
     return EXIT_OK if all(r[1] for r in rows) else EXIT_PARTIAL
 
 
-def _each(args: argparse.Namespace, spec, hosts: Sequence[Host], work) -> list:
+def _each(args: argparse.Namespace, spec: FleetSpec, hosts: Sequence[Host],
+          work: Callable[[RunContext, Host], Any]) -> list:
     """Read-only work on every robot, over connections the keeper holds for the next command."""
+    from rosdeploy.keeper import kept_connect
+    from rosdeploy.rollout import parallel
+
     ctx = context(args, spec, lambda host, msg: None)
     if spec.ssh_persist > 0:
         ctx = replace(ctx, connect=kept_connect(spec.ssh_persist))
@@ -183,6 +251,9 @@ def _each(args: argparse.Namespace, spec, hosts: Sequence[Host], work) -> list:
 
 
 def cmd_connections(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import keeper
+    from rosdeploy.cli import report
+
     reply = keeper.ask({"op": "exit" if args.close else "list"})
     report.connections(out, reply, closed=args.close)
     return EXIT_OK

@@ -215,7 +215,7 @@ def status(out: Output, rows: Sequence[Any]) -> None:
     table = []
     for r in rows:
         if not r.reachable:
-            table.append([r.host, "UNREACHABLE", "-", "-", "-", r.error[:120]])
+            table.append([r.host, "UNREACHABLE", "-", "-", "-", "-", r.error[:120]])
             continue
         services = ", ".join(f"{s['service']}:{s['health'] or s['status']}" for s in r.services) or "none"
         drift = "-" if r.drift is None else ("DRIFT" if r.drift else "in sync")

@@ -5,6 +5,8 @@ import argparse
 import time
 from typing import TYPE_CHECKING
 
+from rosdeploy.cli.common import add_command, duration, positive_int
+from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_PARTIAL
 from rosdeploy.output import Output
 
 if TYPE_CHECKING:
@@ -13,61 +15,71 @@ if TYPE_CHECKING:
 # `rosdeploy.sim` is imported by the handlers: every command builds the whole parser, and
 # the others (an emergency rollback among them) need none of it.
 
+SIM_CODES = (EXIT_OK, EXIT_PARTIAL, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED)
+SIM_MEANINGS = {EXIT_PARTIAL: "the simulated fleet failed: it could not be brought up or down, or is not running"}
+
 
 def register(sub: argparse._SubParsersAction) -> None:
-    parser = sub.add_parser("sim", help="a simulated robot fleet on this machine (Docker-in-Docker robots)",
-                            description="Robots are containers with sshd and their own Docker engine; "
-                                        "state lives in $ROSDEPLOY_SIM_HOME (default ~/.rosdeploy/sim).")
+    parser = add_command(sub, "sim", "a simulated robot fleet on this machine (Docker-in-Docker robots)",
+                         "Robots are containers with sshd and their own Docker engine; state lives in "
+                         "$ROSDEPLOY_SIM_HOME (default ~/.rosdeploy/sim).",
+                         SIM_CODES, "rosdeploy sim up --robots 3", SIM_MEANINGS)
     actions = parser.add_subparsers(dest="sim_command", metavar="ACTION", required=True)
 
-    up = actions.add_parser("up", help="start the robots, the registry, and build the demo images if needed")
-    up.add_argument("--robots", type=int, default=3, metavar="N", help="number of robots (default 3)")
+    up = add_command(actions, "up", "start the robots, the registry, and build the demo images if needed",
+                     "Start N robots and the registry (reusing what runs), building the demo images on first "
+                     "use; prints the inventory, known_hosts and key to deploy with.",
+                     SIM_CODES, "rosdeploy sim up --robots 3", SIM_MEANINGS)
+    up.add_argument("--robots", type=positive_int, default=3, metavar="N", help="number of robots (default 3)")
     up.set_defaults(func=cmd_up)
 
-    down = actions.add_parser("down", help="remove the robots and the registry the simulator started")
+    down = add_command(actions, "down", "remove the robots and the registry the simulator started",
+                       "Remove the robot containers and their volumes, and stop the registry if the simulator "
+                       "started it.", SIM_CODES, "rosdeploy sim down --purge", SIM_MEANINGS)
     down.add_argument("--purge", action="store_true",
                       help="also remove the simulator's images, registry data and state dir")
     down.set_defaults(func=cmd_down)
 
-    status = actions.add_parser("status", help="list the robots, their addresses and state")
-    # Its own dest: a subparser default would otherwise reset the global --json.
-    status.add_argument("--json", dest="status_json", action="store_true",
-                        help="print one JSON document on stdout")
+    status = add_command(actions, "status", "list the robots, their addresses and state",
+                         "List the simulated robots, their SSH addresses and container state, and whether the "
+                         "registry answers.", SIM_CODES, "rosdeploy sim status --json",
+                         {**SIM_MEANINGS, EXIT_OK: "every robot runs and the registry answers",
+                          EXIT_PARTIAL: "no fleet, a robot not running, or the registry down"})
     status.set_defaults(func=cmd_status)
     _register_faults(actions)
 
 
 def _register_faults(actions: argparse._SubParsersAction) -> None:
     """Field faults to rehearse on: a cut link, a robot without its registry, a busy robot, a reboot."""
-    cut = actions.add_parser("cut", help="drop a robot's SSH link (the robot keeps running) until `sim heal`",
-                             description="Every packet to the robot's sshd is dropped, on open connections "
-                                         "too, as when a robot roams out of Wi-Fi range.")
+    cut = add_command(actions, "cut", "drop a robot's SSH link (the robot keeps running) until `sim heal`",
+                      "Every packet to the robot's sshd is dropped, on open connections too, as when a robot "
+                      "roams out of Wi-Fi range.", SIM_CODES, "rosdeploy sim cut robot2 --for 2s", SIM_MEANINGS)
     cut.add_argument("robot", metavar="ROBOT")
-    cut.add_argument("--for", dest="seconds", type=_seconds, default=0.0, metavar="DURATION",
+    cut.add_argument("--for", dest="seconds", type=duration, default=0.0, metavar="DURATION",
                      help="heal by itself after this long (e.g. 2s: a Wi-Fi blip)")
     cut.set_defaults(func=cmd_fault, fault="cut")
-    isolate = actions.add_parser("isolate", help="cut a robot off from the registry; its SSH link still works")
+    isolate = add_command(actions, "isolate", "cut a robot off from the registry; its SSH link still works",
+                          "Drop the robot's traffic to the registry, so pulls fail while SSH works.",
+                          SIM_CODES, "rosdeploy sim isolate robot2 --from registry", SIM_MEANINGS)
     isolate.add_argument("robot", metavar="ROBOT")
     isolate.add_argument("--from", dest="target", choices=["registry"], default="registry")
     isolate.set_defaults(func=cmd_fault, fault="isolate")
-    heal = actions.add_parser("heal", help="undo `sim cut` and `sim isolate` on a robot")
+    heal = add_command(actions, "heal", "undo `sim cut` and `sim isolate` on a robot",
+                       "Restore a robot's SSH link and its way to the registry.", SIM_CODES,
+                       "rosdeploy sim heal robot2", SIM_MEANINGS)
     heal.add_argument("robot", metavar="ROBOT")
     heal.set_defaults(func=cmd_fault, fault="heal")
-    busy = actions.add_parser("busy", help="set the demo driver's /robot_mode to BUSY (on) or IDLE (off)")
+    busy = add_command(actions, "busy", "set the demo driver's /robot_mode to BUSY (on) or IDLE (off)",
+                       "Set the demo driver's /robot_mode topic to BUSY (on) or IDLE (off).", SIM_CODES,
+                       "rosdeploy sim busy robot2 on", SIM_MEANINGS)
     busy.add_argument("robot", metavar="ROBOT")
     busy.add_argument("state", choices=["on", "off"])
     busy.set_defaults(func=cmd_fault, fault="busy")
-    reboot = actions.add_parser("reboot", help="restart a robot (its engine, sshd and containers) and wait for it")
+    reboot = add_command(actions, "reboot", "restart a robot (its engine, sshd and containers) and wait for it",
+                         "Restart a robot (its engine, sshd and containers) and wait until it answers again.",
+                         SIM_CODES, "rosdeploy sim reboot robot2", SIM_MEANINGS)
     reboot.add_argument("robot", metavar="ROBOT")
     reboot.set_defaults(func=cmd_fault, fault="reboot")
-
-
-def _seconds(text: str) -> float:
-    from rosdeploy.fleet import parse_duration
-    try:
-        return parse_duration(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a duration (e.g. 2s, 500ms, 1m)") from None
 
 
 def cmd_fault(args: argparse.Namespace, out: Output) -> int:
@@ -120,21 +132,21 @@ def cmd_down(args: argparse.Namespace, out: Output) -> int:
 
 
 def cmd_status(args: argparse.Namespace, out: Output) -> int:
-    """Exit 0 when every robot runs and the registry answers, 3 otherwise."""
+    """Exit 0 when every robot runs and the registry answers, EXIT_PARTIAL (3) otherwise."""
     from rosdeploy import sim
     current = sim.status()
-    if out.as_json or args.status_json:
+    if out.as_json:
         out.document(_status_document(current))
-        return 0 if current.running else 3
+        return EXIT_OK if current.running else EXIT_PARTIAL
     if not current.robots:
         out.line(f"no simulated fleet in {current.home} (`rosdeploy sim up` starts one)")
-        return 3
+        return EXIT_PARTIAL
     out.table(["ROBOT", "ADDRESS", "ROS_DOMAIN_ID", "CONTAINER", "STATE"],
               [[r.robot.name, f"{r.robot.host}:{r.robot.ssh_port}", r.robot.ros_domain_id, r.robot.container,
                 r.state] for r in current.robots])
     owner = f"started by sim, pid {current.registry_pid}" if current.registry_pid else "not started by sim"
     out.line(f"registry {current.registry}: {'up' if current.registry_up else 'DOWN'} ({owner})")
-    return 0 if current.running else 3
+    return EXIT_OK if current.running else EXIT_PARTIAL
 
 
 def _status_document(current: sim.SimStatus) -> dict:

@@ -10,45 +10,84 @@ import subprocess
 import sys
 
 from rosdeploy import vault as vaultlib
-from rosdeploy.errors import Problem, VaultError
+from rosdeploy.cli.common import epilog
+from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem, VaultError
 from rosdeploy.output import Output
+
+
+CODES = (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL)   # a wrong password or a damaged file is an input error
+EXAMPLE_FILE = "inventory/group_vars/all/vault.yml"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("vault", help="encrypt, decrypt, view or edit vault files (secrets at rest)",
                             description="Whole files encrypted with AES-256-GCM; a group_vars/host_vars "
-                                        "file may be one. Ansible's own vault files are read too.")
+                                        "file may be one. Ansible's own vault files are read too.",
+                            epilog=epilog(CODES, f"rosdeploy vault view {EXAMPLE_FILE}"))
     actions = parser.add_subparsers(dest="vault_action", metavar="ACTION", required=True)
     for name, handler, many, text in (
             ("encrypt", _encrypt, True, "encrypt files in place (mode 0600)"),
             ("decrypt", _decrypt, True, "decrypt files in place (mode 0600)"),
             ("view", _view, False, "print the plaintext of a vault file"),
             ("edit", _edit, False, "edit a vault file with $EDITOR (created if missing)")):
-        action = actions.add_parser(name, help=text, description=text)
+        action = actions.add_parser(name, help=text, description=text,
+                                    epilog=epilog(CODES, f"rosdeploy vault {name} {EXAMPLE_FILE}"))
         action.add_argument("files", nargs="+" if many else 1, metavar="FILE")
-        _password_arg(action)
+        add_vault_options(action)
+        if name in ("encrypt", "edit"):
+            _format_args(action)
         action.set_defaults(func=handler)
     string = actions.add_parser("encrypt-string", help="print `NAME: !vault |` to paste into a vars file",
                                 description="Encrypt one value (from VALUE, else standard input) as an "
-                                            "inline `!vault` value, like ansible-vault encrypt_string.")
+                                            "inline `!vault` value, like ansible-vault encrypt_string.",
+                                epilog=epilog(CODES, "rosdeploy vault encrypt-string --name fleet_api_token"))
     string.add_argument("value", nargs="?", metavar="VALUE",
                         help="the secret; omit it to read standard input (keeps it out of shell history)")
-    string.add_argument("--name", required=True, help="the variable name, e.g. fleet_api_token")
-    _password_arg(string)
+    string.add_argument("--name", required=True, metavar="NAME", help="the variable name, e.g. fleet_api_token")
+    add_vault_options(string)
+    _format_args(string)
     string.set_defaults(func=_encrypt_string)
 
 
-def _password_arg(parser: argparse.ArgumentParser) -> None:
+def add_vault_options(parser: argparse.ArgumentParser) -> None:
+    """--vault-password-file and --vault-id (repeatable): for `vault` and for every fleet command."""
     parser.add_argument("--vault-password-file", metavar="FILE",
                         help=f"file holding the vault password (or set {vaultlib.ENV_PASSWORD_FILE} "
                              f"or {vaultlib.ENV_PASSWORD}); an executable file is run")
+    parser.add_argument("--vault-id", dest="vault_ids", action="append", default=[], metavar="LABEL@FILE",
+                        help="a vault id as in Ansible: LABEL@FILE, LABEL@prompt or FILE; repeat it for "
+                             "files encrypted with different passwords (the first one encrypts)")
+
+
+def vault_from_args(args: argparse.Namespace, prompt: vaultlib.Prompt | None = None) -> vaultlib.Vault:
+    """The Vault that add_vault_options' arguments describe (a --vault-password-file is one more id)."""
+    ids = [vaultlib.VaultId.parse(text) for text in args.vault_ids]
+    if ids and args.vault_password_file:
+        ids.append(vaultlib.VaultId("default", args.vault_password_file))
+    return vaultlib.Vault(password_file=args.vault_password_file, prompt=prompt, ids=ids)
+
+
+def _format_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--format", choices=("ansible", "rosdeploy"), dest="vault_format",
+                        help="ansible: Ansible's 1.1/1.2 format, which ansible-vault reads (the default inside "
+                             "an inventory that already holds Ansible vault data); rosdeploy: AES-256-GCM with "
+                             "scrypt (the default otherwise)")
+    parser.add_argument("--encrypt-vault-id", metavar="LABEL",
+                        help="which --vault-id encrypts (default: the first); its label goes in the header")
+
+
+def _ansible_format(args: argparse.Namespace, near: str) -> bool:
+    if args.vault_format:
+        return args.vault_format == "ansible"
+    return vaultlib.holds_ansible_vaults(near)
 
 
 def _encrypt(args: argparse.Namespace, out: Output) -> int:
     vault = _vault(args, args.files[0], new_password=True)
     for path in args.files:
-        vaultlib.encrypt_file(path, vault)
-        out.line(f"encrypted {path}")
+        ansible = _ansible_format(args, path)
+        vaultlib.encrypt_file(path, vault, ansible_format=ansible, label=args.encrypt_vault_id)
+        out.line(f"encrypted {path}" + (" (Ansible's format: ansible-vault reads it)" if ansible else ""))
     return 0
 
 
@@ -62,7 +101,9 @@ def _encrypt_string(args: argparse.Namespace, out: Output) -> int:
     if not value:
         raise VaultError([Problem("--name", None, "", "nothing to encrypt: give VALUE or pipe it in")])
     vault = _vault(args, args.name, new_password=True)
-    out.line(vaultlib.encrypt_string(value, vault, args.name).rstrip("\n"))
+    ansible = _ansible_format(args, os.getcwd())
+    out.line(vaultlib.encrypt_string(value, vault, args.name, ansible_format=ansible,
+                                     label=args.encrypt_vault_id).rstrip("\n"))
     return 0
 
 
@@ -83,7 +124,8 @@ def _view(args: argparse.Namespace, out: Output) -> int:
 def _edit(args: argparse.Namespace, out: Output) -> int:
     path = args.files[0]
     vault = _vault(args, path, new_password=not os.path.exists(path))
-    changed = vaultlib.edit_file(path, vault, lambda temp: _run_editor(temp, path))
+    changed = vaultlib.edit_file(path, vault, lambda temp: _run_editor(temp, path),
+                                 ansible_format=_ansible_format(args, path))
     out.line(f"saved {path}" if changed else f"no changes to {path}")
     return 0
 
@@ -93,7 +135,7 @@ def _vault(args: argparse.Namespace, about: str, new_password: bool = False) -> 
     prompt = None
     if sys.stdin.isatty():
         prompt = _confirmed_prompt(about) if new_password else getpass.getpass
-    return vaultlib.Vault(password_file=args.vault_password_file, prompt=prompt)
+    return vault_from_args(args, prompt)
 
 
 def _confirmed_prompt(path: str) -> vaultlib.Prompt:

@@ -74,9 +74,8 @@ def run(rule_id: str, *, fleet: FleetSpec | None = None, hosts: list[Host] | Non
             svc.pop(key, None)
         else:
             svc[key] = value
-    project = SimpleNamespace(spec=fleet or spec(), inventory=SimpleNamespace(hosts={h.name: h for h in hosts}))
     rels = releases if releases is not None else [release(h, svc) for h in hosts]
-    return run_checks(project, hosts, rels, rules=[RULES[rule_id]])
+    return run_checks(fleet or spec(), hosts, rels, rules=[RULES[rule_id]])
 
 
 def fires(rule_id: str, **kw: Any) -> Any:
@@ -97,15 +96,14 @@ def test_domain_id_duplicate_on_one_network() -> None:
     a, b = host("amr-1", network="north"), host("amr-22", network="north")
     p = fires("domain-id-duplicate", hosts=[a, b])
     assert (p.file, p.line, p.key) == ("inventory/hosts.yml", 6, "ros_domain_id")
-    assert "amr-22 and amr-1 (inventory/hosts.yml:5) both use ros_domain_id 5 on network `north`" in p.message
+    assert "'amr-22' and 'amr-1' (inventory/hosts.yml:5) both use ros_domain_id 5 on network 'north'" in p.message
     silent("domain-id-duplicate", hosts=[a, replace(b, network="south")])
     silent("domain-id-duplicate", hosts=[a, host("amr-22", network="north", ros_domain_id=6)])
 
 
 def test_domain_id_duplicate_counts_robots_outside_the_limit() -> None:
     a, b = host("amr-1"), host("amr-22")
-    project = SimpleNamespace(spec=spec(), inventory=SimpleNamespace(hosts={"amr-1": a, "amr-22": b}))
-    found = run_checks(project, [b], [release(b)], rules=[RULES["domain-id-duplicate"]])
+    found = run_checks(spec(), [b], [release(b)], all_hosts=[a, b], rules=[RULES["domain-id-duplicate"]])
     assert len(found) == 1 and "amr-1" in found[0].message
 
 
@@ -132,7 +130,7 @@ def test_device_undeclared_names_service_device_and_robots() -> None:
     lacking = [host("amr-1", devices=frozen_map()), host("amr-2", devices=frozen_map())]
     p = fires("device-undeclared", hosts=lacking)
     assert (p.file, p.key) == ("fleet.yml", "services.driver.devices[0]")
-    assert "needs device `motor`" in p.message and "amr-1, amr-2" in p.message
+    assert "needs device `motor`" in p.message and "'amr-1', 'amr-2'" in p.message
     assert "`motor: /dev/robot/motor` under their `devices:`" in p.message
     silent("device-undeclared")
 
@@ -329,7 +327,7 @@ def test_identical_findings_merge_across_robots() -> None:
     hosts = [host(f"amr-{i}", ros_domain_id=i) for i in range(1, 8)]
     found = run("restart-missing", hosts=hosts, restart="no")
     assert len(found) == 1
-    assert "amr-1, amr-2, amr-3, amr-4, amr-5 (+2 more)" in found[0].message
+    assert "'amr-1', 'amr-2', 'amr-3', 'amr-4', 'amr-5' (+2 more)" in found[0].message
 
 
 def test_findings_are_sorted_errors_first() -> None:
@@ -337,7 +335,7 @@ def test_findings_are_sorted_errors_first() -> None:
     svc = dict(GOOD_SERVICE, restart="no", user="root")
     svc.pop("cpus")
     project = SimpleNamespace(spec=spec(), inventory=SimpleNamespace(hosts={h.name: h}))
-    found = run_checks(project, [h], [release(h, svc)])
+    found = run_checks(project.spec, [h], [release(h, svc)])
     assert [p.severity for p in found] == sorted((p.severity for p in found), key=checks.SEVERITIES.index)
     assert {p.rule for p in found} == {"restart-missing", "user-root", "resources-missing"}
 
@@ -357,9 +355,9 @@ def test_parse_env_and_interpolate() -> None:
 
 
 def test_dds_peers_reads_both_vendors() -> None:
-    assert dds_peers(FASTDDS_PEERS) == ["driver"]
-    assert dds_peers(CYCLONE_PEERS) == ["driver"]
-    assert dds_peers(NO_PEERS) == []
+    assert dds_peers(FASTDDS_PEERS) == ("driver",)
+    assert dds_peers(CYCLONE_PEERS) == ("driver",)
+    assert dds_peers(NO_PEERS) == ()
 
 
 def test_every_rule_is_in_the_fleet_file_reference() -> None:
@@ -376,5 +374,5 @@ def test_every_rule_is_in_the_fleet_file_reference() -> None:
 def test_odd_compose_shapes_from_user_templates_never_crash(service: dict) -> None:
     h = host()
     project = SimpleNamespace(spec=spec(), inventory=SimpleNamespace(hosts={h.name: h}))
-    found = run_checks(project, [h], [release(h, service)])
+    found = run_checks(project.spec, [h], [release(h, service)])
     assert all(p.rule in RULES for p in found)

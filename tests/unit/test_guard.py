@@ -305,3 +305,20 @@ def test_activation_after_the_guard_took_over_fails_and_switches_nothing() -> No
     with pytest.raises(GuardTookOver, match="took this run over"):
         run.activate("1.1.0-x", {"event": "deploy"})
     assert run.t.calls[0].argv[-1] == "run-1" and not run.locked
+
+
+def test_the_status_table_shows_the_word_and_why_for_every_robot() -> None:
+    import io
+
+    from rosdeploy.cli import report
+    from rosdeploy.output import Output
+    from rosdeploy.views import RobotStatus
+    buf = io.StringIO()
+    rows = [RobotStatus("r1", True, release="1.0.0-a", version="1.0.0", state="INTERRUPTED",
+                        reason="1.2.0-bad running, 1.0.0 active; guard reverts to 1.0.0-a in 42 s"),
+            RobotStatus("r2", False, error="unreachable: no answer")]
+    report.status(Output(stdout=buf, stderr=io.StringIO(), color=False), rows)
+    lines = buf.getvalue().splitlines()
+    assert lines[0].split() == ["ROBOT", "STATE", "VERSION", "DRIFT", "SERVICES", "LAST", "DEPLOY", "WHY"]
+    assert "INTERRUPTED" in lines[1] and lines[1].endswith("guard reverts to 1.0.0-a in 42 s")
+    assert "UNREACHABLE" in lines[2] and lines[2].endswith("unreachable: no answer")

@@ -54,7 +54,8 @@ def test_single_terms(pattern, expected):
     ("&perception:site_north:site_south", ["amr-n1", "amr-s2"]),
     ("site_north:&perception:!amr-n1:site_south", ["amr-s2"]),
     ("warehouse:!~amr-s.*", ["amr-n1", "amr-n2"]),
-    ("site_north,site_south:!amr-s2", ["amr-n1", "amr-n2", "amr-s1"]),
+    # With a comma, Ansible splits on commas only: `site_south:!amr-s2` is one term matching nothing.
+    ("site_north,site_south:!amr-s2", ["amr-n1", "amr-n2"]),
     ("warehouse[0]", ["amr-n1"]),                                 # subscripts, Ansible's inclusive end
     ("warehouse[-1]", ["amr-s2"]),
     ("warehouse[1:2]", ["amr-n2", "amr-s1"]),
@@ -78,10 +79,37 @@ def test_unknown_term_is_an_error_even_inside_an_exclusion():
     assert "did you mean 'amr-n" in str(caught.value)
 
 
-def test_every_unknown_term_is_reported():
+def test_every_unknown_exclusion_is_reported():
     with pytest.raises(InventoryError) as caught:
-        names("nope1:&nope2")
+        names("site_north:!nope2:!nope3")
     assert len(caught.value.problems) == 2
+
+
+def test_an_unmatched_union_term_is_a_warning_as_in_ansible():
+    warnings: list = []
+    assert list(select("site_north:nomatch", HOSTS, GROUPS, warnings=warnings)) == ["amr-n1", "amr-n2"]
+    assert len(warnings) == 1 and warnings[0].severity == "warning" and "'nomatch'" in warnings[0].message
+
+
+def test_a_pattern_matching_nothing_at_all_is_refused_with_the_reason():
+    with pytest.raises(InventoryError, match="'nope' matches no host or group"):
+        names("nope")
+
+
+def test_localhost_is_refused_unless_the_inventory_has_it():
+    with pytest.raises(InventoryError, match="localhost is not in the inventory"):
+        names("localhost")
+    assert list(select("localhost", (*HOSTS, "localhost"), GROUPS)) == ["localhost"]
+
+
+def test_subscripts_index_the_group_order_given_not_the_inventory_order():
+    groups = {**GROUPS, "canary": ("amr-s2", "amr-n1")}
+    assert names_in(groups, "canary[0]") == ["amr-s2"]
+    assert names_in(groups, "canary[0:0]") == ["amr-s2"]      # Ansible reads an end of 0 as none
+
+
+def names_in(groups, pattern):
+    return list(select(pattern, HOSTS, groups))
 
 
 def test_empty_result_is_an_error_naming_the_pattern():
@@ -96,5 +124,7 @@ def test_empty_pattern_and_bad_regex():
         names("~amr-(")
 
 
-def test_split_keeps_brackets_whole():
-    assert split("web[0:2]:db,~x.*:!y") == ["web[0:2]", "db", "~x.*", "!y"]
+def test_split_like_ansible():
+    assert split("web[0:2]:db:~x.*:!y") == ["web[0:2]", "db", "~x.*", "!y"]
+    assert split("a:b,c") == ["a:b", "c"]      # a comma present: split on commas only
+    assert split("amr-n1:22") == ["amr-n1:22"]  # host:port is one address

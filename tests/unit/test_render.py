@@ -328,8 +328,11 @@ def test_missing_secret_var_is_named() -> None:
 def test_secret_leaking_into_compose_is_refused() -> None:
     spec = make_spec(make_service(environment={"TOKEN": "{{ vault_token }}"}))
     host = make_host(vars={"vault_token": "hunter22"}, secret_values=frozenset({"hunter22"}))
-    with pytest.raises(RenderError, match="secret value would be written to compose.yml"):
+    with pytest.raises(RenderError, match="copies a vault secret into compose.yml") as caught:
         render(spec, host)
+    # reported at the fleet key that copies it, not where the robot is declared
+    assert [p.key for p in caught.value.problems] == ["services.driver.environment.TOKEN"]
+    assert "hunter22" not in str(caught.value)
 
 
 # ------------------------------------------------------------ metacharacters
@@ -343,16 +346,17 @@ def test_inventory_values_with_metacharacters_parse_back() -> None:
     spec = make_spec(make_service(environment={"LABEL": "{{ label }}"}, devices=("motor",),
                                   healthcheck=HealthCheck(("CMD-SHELL", NASTY))),
                      network_mode="bridge")
-    host = make_host(name="odd\nname: {x}", vars={"label": NASTY, "dds_peers": ["a<b>&\"c'"]},
+    # dds_peers must be addresses now (a hostile one is refused: tests/unit/test_hostile.py)
+    host = make_host(name="odd\nname: {x}", vars={"label": NASTY, "dds_peers": ["amr-2.local", "fe80::1"]},
                      devices={"motor": "/dev/robot/m&*<>#[]{}"})
     rel = render(spec, host)
     svc = compose(rel)["services"]["driver"]
     assert uncompose(svc["environment"]["LABEL"]) == NASTY
     assert uncompose(svc["healthcheck"]["test"][1]) == NASTY
     assert svc["devices"] == ["/dev/robot/m&*<>#[]{}:/dev/robot/m&*<>#[]{}"]
-    assert "a<b>&\"c'" in peers_fastdds(rel.file("fastdds.xml").content)
+    assert {"amr-2.local", "fe80::1"} <= peers_fastdds(rel.file("fastdds.xml").content)
     cyc = render(dataclasses.replace(spec, rmw="cyclonedds"), host).file("cyclonedds.xml").content
-    assert "a<b>&\"c'" in peers_cyclone(cyc)
+    assert {"amr-2.local", "fe80::1"} <= peers_cyclone(cyc)
 
 
 def test_env_value_quoting() -> None:
@@ -396,7 +400,7 @@ def test_logrotate_covers_the_log_dirs(root: str, user: str | None, expected: st
 @pytest.mark.parametrize("name,value", [("dds_lease_duration", "10s"), ("logrotate_keep", True),
                                         ("logrotate_size", "50 MB"), ("dds_socket_buffer", "lots")])
 def test_bad_tunable_vars_are_named(name: str, value: Any) -> None:
-    with pytest.raises(RenderError, match=f"robot1: {name} must be"):
+    with pytest.raises(RenderError, match=f"robot 'robot1': {name} must be"):
         render(make_spec(), make_host(vars={name: value}))
 
 
@@ -449,7 +453,7 @@ def test_undefined_variable_names_template_line_robot_and_name(tmp_path: Path) -
 
 def test_undefined_variable_in_fleet_env_template() -> None:
     spec = make_spec(make_service(environment={"X": "{{ missing_var }}"}))
-    with pytest.raises(RenderError, match="robot1: 'missing_var' is undefined"):
+    with pytest.raises(RenderError, match="robot 'robot1': 'missing_var' is undefined"):
         render(spec, make_host())
 
 

@@ -324,3 +324,81 @@ def test_cli_encrypt_string_pastes_into_a_vars_file(tmp_path):
     from rosdeploy.inventory import load_inventory
     host = load_inventory(str(tmp_path), Vault(password_file=str(password))).hosts["r1"]
     assert host.vars["fleet_api_token"] == "s3cret" and "s3cret" in host.secret_values
+
+
+# ------------------------------------------------------------------ vault ids, Ansible's format by default
+
+
+def password_files(root: Path, **passwords: str) -> dict[str, Path]:
+    out = {}
+    for label, text in passwords.items():
+        out[label] = root / f"{label}.pw"
+        out[label].write_text(text + "\n")
+    return out
+
+
+def test_several_vault_ids_open_files_of_different_passwords(tmp_path):
+    pw = password_files(tmp_path, dev="dev-pass", prod="prod-pass")
+    vault = Vault(ids=[vaultlib.VaultId.parse(f"dev@{pw['dev']}"), vaultlib.VaultId.parse(f"prod@{pw['prod']}")])
+    labelled = ansible_encrypt(SECRET, b"prod-pass", "prod")
+    unlabelled = encrypt(b"other: 1\n", b"dev-pass", FAST)
+    mislabelled = ansible_encrypt(b"x: 1\n", b"dev-pass", "prod")    # the label is a hint, not a rule
+    assert vault.decrypt(labelled, "a.yml") == SECRET
+    assert vault.decrypt(unlabelled, "b.yml") == b"other: 1\n"
+    assert vault.decrypt(mislabelled, "c.yml") == b"x: 1\n"
+    with pytest.raises(VaultError, match=r"dev@.*then --vault-id prod@"):
+        vault.decrypt(ansible_encrypt(b"y: 1\n", b"nobody's"), "d.yml")
+
+
+def test_vault_id_forms_and_bad_ones():
+    assert vaultlib.VaultId.parse("prod@/k/pw") == vaultlib.VaultId("prod", "/k/pw")
+    assert vaultlib.VaultId.parse("/k/pw") == vaultlib.VaultId("default", "/k/pw")
+    with pytest.raises(VaultError, match="LABEL@FILE"):
+        vaultlib.VaultId.parse("prod@")
+
+
+def test_cli_format_ansible_and_the_encrypting_vault_id(tmp_path):
+    pw = password_files(tmp_path, dev="dev-pass", prod="prod-pass")
+    path = tmp_path / "secret.yml"
+    path.write_bytes(SECRET)
+    code, _ = run_cli("vault", "encrypt", "--format", "ansible", "--vault-id", f"dev@{pw['dev']}",
+                      "--vault-id", f"prod@{pw['prod']}", "--encrypt-vault-id", "prod", str(path))
+    assert code == 0 and path.read_bytes().startswith(b"$ANSIBLE_VAULT;1.2;AES256;prod\n")
+    assert decrypt(path.read_bytes(), b"prod-pass", "x") == SECRET
+
+
+def test_ansible_format_is_the_default_in_an_inventory_with_ansible_vaults(tmp_path):
+    pw = password_files(tmp_path, default="pw")
+    inventory = tmp_path / "inv"
+    (inventory / "group_vars" / "all").mkdir(parents=True)
+    (inventory / "group_vars" / "all" / "old.yml").write_bytes(ansible_encrypt(b"a: 1\n", b"pw"))
+    fresh = inventory / "group_vars" / "all" / "new.yml"
+    fresh.write_bytes(SECRET)
+    code, out = run_cli("vault", "encrypt", "--vault-password-file", str(pw["default"]), str(fresh))
+    assert code == 0 and fresh.read_bytes().startswith(b"$ANSIBLE_VAULT;1.1;AES256\n") and "Ansible" in out
+    elsewhere = tmp_path / "loose.yml"
+    elsewhere.write_bytes(SECRET)
+    run_cli("vault", "encrypt", "--vault-password-file", str(pw["default"]), str(elsewhere))
+    assert elsewhere.read_bytes().startswith(b"$ROSDEPLOY_VAULT;")
+
+
+def test_example_inventory_vault_is_in_ansibles_format():
+    example = Path(__file__).resolve().parents[2] / "inventory" / "warehouse"
+    data = (example / "group_vars" / "warehouse" / "vault.yml").read_bytes()
+    assert data.startswith(b"$ANSIBLE_VAULT;1.1;AES256\n")
+    password = (example / ".vault-password-example").read_bytes().strip()
+    assert b"fleet_api_token: demo-4f9c2a7e1b8d4e6fa0c3" in decrypt(data, password, "vault.yml")
+
+
+def test_fleet_commands_can_reuse_the_vault_options(tmp_path):
+    """cli.vault.add_vault_options/vault_from_args: what every fleet command adds and reads."""
+    pw = password_files(tmp_path, dev="dev-pass", default="pw")
+    parser = argparse.ArgumentParser()
+    vault_cli.add_vault_options(parser)
+    args = parser.parse_args(["--vault-id", f"dev@{pw['dev']}", "--vault-password-file", str(pw["default"])])
+    vault = vault_cli.vault_from_args(args)
+    assert vault.labels == ("dev", "default")
+    assert vault.decrypt(encrypt(SECRET, b"pw", FAST), "a.yml") == SECRET
+    assert vault.decrypt(ansible_encrypt(SECRET, b"dev-pass", "dev"), "b.yml") == SECRET
+    plain = vault_cli.vault_from_args(parser.parse_args(["--vault-password-file", str(pw["default"])]))
+    assert plain.decrypt(encrypt(SECRET, b"pw", FAST), "c.yml") == SECRET

@@ -1,0 +1,130 @@
+"""Finding the inventory files (a file or a directory of them) and reading them, vault included."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from rosdeploy import yamlsrc
+from rosdeploy.errors import InputError, Problem, VaultError
+from rosdeploy.inventory.draft import Draft, Origin
+from rosdeploy.inventory.ini_parser import check_undeclared, parse_ini
+from rosdeploy.inventory.known import MAYBE_NOT_INVENTORY, SCRIPT_EXTS, SKIPPED_EXTS, YAML_EXTS
+from rosdeploy.inventory.script import is_script, parse_script
+from rosdeploy.inventory.yaml_parser import parse_yaml
+from rosdeploy.vault import Vault
+from rosdeploy.yamlsrc import Doc, Encrypted
+
+
+class Reader:
+    """Reads files, decrypting vault ones in memory, and turns YAML into Docs."""
+
+    def __init__(self, vault: Vault, warnings: list[Problem]) -> None:
+        self.vault = vault
+        self.warnings = warnings   # duplicate keys: Ansible warns and keeps the last, so do we
+
+    def text(self, path: Path, problems: list[Problem]) -> tuple[str, bool] | None:
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            problems.append(Problem(str(path), None, "", f"cannot read file: {exc.strerror}"))
+            return None
+        plain, secret = self.vault.read(str(path), data)
+        try:
+            return plain.decode("utf-8"), secret
+        except UnicodeDecodeError as exc:
+            problems.append(Problem(str(path), None, "", f"not UTF-8 text ({exc.reason} at byte "
+                                                         f"{exc.start}): save the file as UTF-8"))
+            return None
+
+    def doc(self, path: Path, problems: list[Problem]) -> Origin | None:
+        """A YAML file, `!vault` values decrypted, as the origin of its root mapping."""
+        read = self.text(path, problems)
+        return None if read is None else self.load(path, read[0], read[1], problems)
+
+    def load(self, path: Path, text: str, secret: bool, problems: list[Problem]) -> Origin | None:
+        try:
+            doc = yamlsrc.load(path, text, duplicates=self.warnings)
+        except InputError as exc:
+            problems.extend(exc.problems)
+            return None
+        revealed: set[str] = set()
+        data = self._reveal(doc.data, str(path), revealed)
+        return Origin(Doc(doc.path, data, doc.lines), (), secret, frozenset(revealed))
+
+    def _reveal(self, value: Any, path: str, revealed: set[str]) -> Any:
+        """`value` with every `!vault` scalar (Ansible's encrypt_string) decrypted."""
+        if isinstance(value, Encrypted):
+            try:
+                plain = self.vault.decrypt(value.encode("ascii", "replace"), path).decode("utf-8")
+            except UnicodeDecodeError:
+                raise VaultError([Problem(path, None, "", "a !vault value is not UTF-8 text once "
+                                                          "decrypted: encrypt text only")]) from None
+            revealed.add(plain)
+            return plain
+        if isinstance(value, dict):
+            return {key: self._reveal(item, path, revealed) for key, item in value.items()}
+        if isinstance(value, list):
+            return [self._reveal(item, path, revealed) for item in value]
+        return value
+
+
+def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
+    """Parse the inventory file(s); returns the directory holding group_vars/ and host_vars/."""
+    if root.is_dir():
+        files, base = _inventory_files(root, draft.problems), root
+        if not files and not draft.problems:
+            draft.problems.append(Problem(str(root), None, "", "no inventory file in this directory: "
+                                                               "add hosts.yml (YAML) or hosts (INI)"))
+    elif root.is_file():
+        files, base = [root], root.parent
+    else:
+        draft.problems.append(Problem(str(root), None, "", "inventory not found: check -i / the fleet "
+                                                           "file's `inventory:` path"))
+        return root
+    for path in files:
+        if is_script(path):
+            parse_script(path, draft)
+            continue
+        read = reader.text(path, draft.problems)
+        if read is None:
+            continue
+        if path.suffix in YAML_EXTS:
+            if (origin := reader.load(path, read[0], read[1], draft.problems)) is not None:
+                parse_yaml(origin, draft)
+        elif path.name.endswith(MAYBE_NOT_INVENTORY) and root.is_dir():
+            _parse_ini_or_skip(path, read, draft)
+        else:
+            parse_ini(path, read[0], read[1], draft)
+    check_undeclared(draft)
+    return base
+
+
+def _parse_ini_or_skip(path: Path, read: tuple[str, bool], draft: Draft) -> None:
+    """`hosts.example` & co: Ansible tries them as INI and only warns when that fails."""
+    before = len(draft.problems)
+    parse_ini(path, read[0], read[1], draft)
+    if len(draft.problems) > before:
+        first = draft.problems[before]
+        del draft.problems[before:]
+        draft.warnings.append(Problem(str(path), first.line, "", f"not an inventory ({first.message}): skipped, "
+                                      "as Ansible skips a file it cannot parse", severity="warning"))
+
+
+def _inventory_files(root: Path, problems: list[Problem]) -> list[Path]:
+    found: list[Path] = []
+    for entry in sorted(root.iterdir()):
+        if entry.name.startswith(".") or entry.name in ("group_vars", "host_vars"):
+            continue
+        if entry.is_dir():
+            found.extend(_inventory_files(entry, problems))
+        elif entry.name.endswith(SKIPPED_EXTS):
+            continue
+        elif entry.suffix in SCRIPT_EXTS and not is_script(entry):
+            problems.append(Problem(str(entry), None, "", "looks like a dynamic inventory script but is not "
+                                    "executable: `chmod +x` it to have it run (as Ansible does), or move it "
+                                    "out of the inventory directory"))
+        else:
+            found.append(entry)  # like Ansible: YAML by extension, anything else is INI
+    return found
+
+

@@ -1,0 +1,338 @@
+"""Checks and converters of the host vars rosdeploy reads (connection, ROS, devices, udev)."""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+from rosdeploy import suggest
+from rosdeploy.errors import Problem
+from rosdeploy.fleet import REMOTE_PATH_RE
+from rosdeploy.inventory.draft import Layer, Origin
+from rosdeploy.inventory.known import (ANSIBLE_VARS, FALSE, HEX4, MODE, NAME, NEAR_MISS_CUTOFF, SERIAL,
+                                       SHELL_UNSAFE, SUBSYSTEM, SYMLINK, TRUE, UDEV_KEYS, UDEV_REQUIRED,
+                                       UNIX_GROUP, did_you_mean_hint)
+from rosdeploy.model import UdevDevice, frozen_map
+from rosdeploy.yamlsrc import KeyPath
+
+
+@dataclass(frozen=True)
+class Var:
+    """One var rosdeploy reads: the Host field it fills, its converter, and whose name it is.
+
+    `shape` is set for short names other tools use too (`devices`, `gpu`): a value that
+    fails it belongs to someone else, so it is a warning and ignored, not a refusal.
+    Through the `rosdeploy_` name the value is always rosdeploy's, and checked strictly.
+    """
+
+    field: str | None            # None: the var stays in Host.vars (normalised), read by deploy/transport
+    convert: Callable[[Any], Any]
+    shape: Callable[[Any], bool] | None = None
+    what: str = ""               # the expected shape, for the warning
+
+
+def host_fields(name: str, read: Callable[[str], Any], origins: Mapping[str, Origin]
+                ) -> tuple[dict[str, Any], dict[str, Any], list[Problem], list[Problem]]:
+    """(Host fields, normalised vars, errors, warnings) of one host; `read` templates a var."""
+    fields: dict[str, Any] = {"address": name}
+    normalised: dict[str, Any] = {}
+    errors: list[Problem] = []
+    warnings: list[Problem] = []
+
+    def take(var: str, spec: Var, foreign_ok: bool) -> None:
+        try:
+            value = read(var)
+            if value is None:      # `ansible_user:` with nothing: unset, as in Ansible
+                return
+            if foreign_ok and spec.shape is not None and not spec.shape(value):
+                warnings.append(_foreign(name, var, value, spec, origins[var]))
+                return
+            converted = spec.convert(value)
+        except BadValue as bad:
+            errors.append(origins[var].problem((var, *bad.subpath), f"robot {name!r}: {bad.message}"))
+            return
+        if spec.field is None:
+            normalised[var] = converted
+        else:
+            fields[spec.field] = converted
+
+    for field, candidates in CONNECTION.items():
+        # Ansible's ssh plugin: of the names it lists, the last one set wins (ansible_ssh_host
+        # beats ansible_host), whichever inventory level each came from.
+        used = next((var for var in reversed(candidates) if var in origins), None)
+        if used is not None:
+            take(used, Var(field, CONVERTERS[field]), False)
+            if field == "key_file":
+                where = origins[used].problem((used,), "")
+                fields["key_file_var"] = f"{used} ({where.file}:{where.line})" if where.line else used
+    for short, spec in OWN_VARS.items():
+        prefixed = PREFIX + short
+        if prefixed in origins:
+            take(prefixed, spec, False)
+        elif short in origins:
+            take(short, spec, True)
+    for var, spec in PREFIXED_ONLY.items():
+        if var in origins:
+            take(var, spec, False)
+    return fields, normalised, errors, warnings
+
+
+def _foreign(host: str, var: str, value: Any, spec: Var, origin: Origin) -> Problem:
+    shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+    return origin.problem((var,), f"robot {host!r}: {var} is {shown}, not rosdeploy's {spec.what}: another tool's "
+                                  f"variable, ignored by rosdeploy; give rosdeploy its own as {PREFIX}{var}",
+                          severity="warning")
+
+
+def check_layer(layer: Layer) -> tuple[list[Problem], list[Problem]]:
+    """(errors, warnings) that depend on one layer only: found once, not once per host."""
+    errors: list[Problem] = []
+    warnings: list[Problem] = []
+    for key in layer.vars:
+        if not isinstance(key, str):
+            errors.append(layer.origin.problem((key,), "variable names must be strings: quote it"))
+        elif key.startswith(PREFIX) and key not in PREFIXED_VARS:
+            hint = suggest.did_you_mean(key, PREFIXED_VARS) or f"known: {', '.join(sorted(PREFIXED_VARS))}"
+            errors.append(layer.origin.problem((key,), f"unknown rosdeploy variable {key!r}: {hint} "
+                                                       "(the rosdeploy_ prefix is rosdeploy's own)"))
+        elif close := _near_miss(key):
+            warnings.append(layer.origin.problem((key,), f"{key!r} is not a variable rosdeploy reads: did you "
+                                                         f"mean {close!r}? (ignored if it is another tool's)",
+                                                 severity="warning"))
+    return errors, warnings
+
+
+def _near_miss(name: str) -> str | None:
+    if name in CONSUMED_VARS or name in ANSIBLE_VARS:
+        return None
+    return suggest.closest(name, CONSUMED_VARS, cutoff=NEAR_MISS_CUTOFF)
+
+
+class BadValue(Exception):
+    """A var's value is wrong; `subpath` points inside it (e.g. ("lidar",) in devices)."""
+
+    def __init__(self, message: str, subpath: KeyPath = ()) -> None:
+        super().__init__(message)
+        self.message = message
+        self.subpath = subpath
+
+
+def to_int(value: Any, what: str) -> int:
+    # Ansible accepts "2222" where it wants a number; so do we, but nothing looser: ASCII
+    # digits only ("²".isdigit() is True, and int("²") raises).
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if isinstance(value, str) and _ASCII_INT.fullmatch(value.strip()):
+        return int(value)
+    raise BadValue(f"must be {what}, got {value!r}")
+
+
+def _to_port(value: Any) -> int:
+    port = to_int(value, "a port number (an integer 1-65535)")
+    if not 1 <= port <= 65535:
+        raise BadValue(f"must be a port number 1-65535, got {port}")
+    return port
+
+
+def _to_domain_id(value: Any) -> int:
+    domain = to_int(value, "an integer 0-232 (the ROS_DOMAIN_ID)")
+    if not 0 <= domain <= 232:
+        raise BadValue(f"must be 0-232 (DDS maps higher IDs to ports outside the valid range), got {domain}")
+    return domain
+
+
+def _to_bool(value: Any) -> bool:
+    if isinstance(value, bool):
+        return value
+    # Ansible's boolean(): INI writes `gpu=true` as a string.
+    if isinstance(value, str) and value.strip().lower() in TRUE + FALSE:
+        return value.strip().lower() in TRUE
+    raise BadValue(f"must be true or false, got {value!r}")
+
+
+def _safe_text(value: Any, what: str, extra_unsafe: str = "") -> str:
+    if not isinstance(value, str) or not value:
+        raise BadValue(f"must be {what} (a non-empty string), got {value!r}")
+    bad = sorted(set(value) & (SHELL_UNSAFE | set(extra_unsafe)))
+    if bad:
+        shown = ", ".join(repr(c) for c in bad)
+        raise BadValue(f"{what} {value!r} contains {shown}: whitespace and shell metacharacters are not "
+                       "allowed here; fix the value")
+    return value
+
+
+def _to_address(value: Any) -> str:
+    address = _safe_text(value, "a host name or IP address")
+    if address.startswith("-"):
+        raise BadValue(f"{address!r} starts with '-', which ssh would read as an option; fix the address")
+    return address
+
+
+def _to_user(value: Any) -> str:
+    user = _safe_text(value, "a user name")
+    if user.startswith("-"):
+        raise BadValue(f"{user!r} starts with '-', which ssh would read as an option; fix the user name")
+    return user
+
+
+def _to_local_path(value: Any) -> str:
+    """A file on this machine: `~` expanded, a relative path taken from the working directory,
+    as Ansible (ssh) does for ansible_ssh_private_key_file; `{{ inventory_dir }}/...` for a
+    path beside the inventory."""
+    if not isinstance(value, str) or not value:
+        raise BadValue(f"must be a path to a file, got {value!r}")
+    return _safe_text(os.path.abspath(os.path.expanduser(value)), "a file path")
+
+
+def _to_remote_root(value: Any) -> str:
+    """A directory on the robot, the way the fleet file's deploy_root is checked."""
+    # The pattern admits letters, digits and `_.-` only: no shell metacharacter gets through.
+    if not isinstance(value, str) or not REMOTE_PATH_RE.fullmatch(value) or ".." in value.split("/"):
+        raise BadValue(f"must be an absolute path or one under ~ on the robot, without '..' or shell "
+                       f"metacharacters (e.g. /opt/rosdeploy or ~/rosdeploy), got {value!r}")
+    return value
+
+
+def _to_compose(value: Any) -> str:
+    if value in COMPOSE_CHOICES:
+        return str(value)
+    raise BadValue(f"must be one of {', '.join(COMPOSE_CHOICES)}, got {value!r}"
+                   f"{did_you_mean_hint(value, COMPOSE_CHOICES)}")
+
+
+def _to_network(value: Any) -> str:
+    if isinstance(value, str) and NAME.fullmatch(value):
+        return value
+    raise BadValue(f"must be a network name (letters, digits, '_', '-', '.'), got {value!r}")
+
+
+def _to_devices(value: Any) -> Mapping[str, str]:
+    if not isinstance(value, Mapping):
+        raise BadValue("must be a mapping of logical name to device path, e.g. "
+                       "{lidar: /dev/robot/lidar}")
+    out: dict[str, str] = {}
+    for name, path in value.items():
+        if not isinstance(name, str) or not NAME.fullmatch(name):
+            raise BadValue(f"invalid device name {name!r}: use letters, digits, '_', '-', '.'", (name,))
+        out[name] = _device_path(path, (name,))
+    return frozen_map(out)
+
+
+def _device_path(path: Any, subpath: KeyPath) -> str:
+    try:
+        # ':' and ',' separate fields in compose's `devices:` entries.
+        text = _safe_text(path, "an absolute device path", extra_unsafe=":,")
+    except BadValue as bad:
+        raise BadValue(bad.message, subpath) from None
+    parts = text.split("/")
+    if not text.startswith("/dev/") or ".." in parts or "." in parts or len(text) <= len("/dev/"):
+        raise BadValue(f"must be a device path under /dev on the robot (e.g. /dev/robot/lidar), got {text!r}",
+                       subpath)
+    return text
+
+
+def _to_udev(value: Any) -> tuple[UdevDevice, ...]:
+    if not isinstance(value, list):
+        raise BadValue("must be a list of devices, each {symlink, subsystem, vendor, product}")
+    devices = tuple(_udev_device(entry, index) for index, entry in enumerate(value))
+    seen: set[str] = set()
+    for index, device in enumerate(devices):
+        if device.symlink in seen:
+            raise BadValue(f"symlink {device.symlink!r} is listed twice: keep one entry", (index, "symlink"))
+        seen.add(device.symlink)
+    return devices
+
+
+def _udev_device(entry: Any, index: int) -> UdevDevice:
+    if not isinstance(entry, Mapping):
+        raise BadValue("each udev entry must be a mapping with symlink, subsystem, vendor, product", (index,))
+    for key in entry:
+        if key not in UDEV_KEYS:
+            raise BadValue(f"unknown key {key!r}{did_you_mean_hint(key, UDEV_KEYS)} "
+                           f"(known: {', '.join(UDEV_KEYS)})", (index, key))
+    for key in UDEV_REQUIRED:
+        if key not in entry:
+            raise BadValue(f"missing {key}: every udev entry needs {', '.join(UDEV_REQUIRED)}", (index,))
+    return UdevDevice(
+        symlink=_udev_symlink(entry["symlink"], (index, "symlink")),
+        subsystem=_udev_text(entry["subsystem"], SUBSYSTEM, "a subsystem like tty or video4linux",
+                             (index, "subsystem")),
+        vendor=_udev_hex(entry["vendor"], (index, "vendor")),
+        product=_udev_hex(entry["product"], (index, "product")),
+        serial=_udev_optional(entry, "serial", SERIAL, "a serial number (letters, digits, _.:/+-)", index),
+        group=_udev_optional(entry, "group", UNIX_GROUP, "a Unix group name like dialout", index),
+        mode=_udev_mode(entry.get("mode", "0660"), (index, "mode")),
+    )
+
+
+def _udev_text(value: Any, pattern: re.Pattern[str], what: str, subpath: KeyPath) -> str:
+    if isinstance(value, str) and pattern.fullmatch(value):
+        return value
+    quote = " (quote it: YAML reads unquoted digits as a number)" if isinstance(value, int) else ""
+    raise BadValue(f"must be {what}, got {value!r}{quote}", subpath)
+
+
+def _udev_optional(entry: Mapping[str, Any], key: str, pattern: re.Pattern[str], what: str,
+                   index: int) -> str | None:
+    value = entry.get(key)
+    return None if value is None else _udev_text(value, pattern, what, (index, key))
+
+
+def _udev_hex(value: Any, subpath: KeyPath) -> str:
+    return _udev_text(value, HEX4, "4 hex digits as a string, e.g. \"0403\"", subpath).lower()
+
+
+def _udev_symlink(value: Any, subpath: KeyPath) -> str:
+    if isinstance(value, str) and value.startswith("/dev/"):
+        raise BadValue(f"write the symlink relative to /dev: {value[5:]!r}", subpath)
+    link = _udev_text(value, SYMLINK, "a path relative to /dev, e.g. robot/lidar", subpath)
+    if ".." in link.split("/"):
+        raise BadValue(f"must stay inside /dev, got {link!r}", subpath)
+    return link
+
+
+def _udev_mode(value: Any, subpath: KeyPath) -> str:
+    mode = _udev_text(value, MODE, "an octal mode as a string, e.g. \"0660\"", subpath)
+    return mode.zfill(4)
+
+
+def _is_bool(value: Any) -> bool:
+    return isinstance(value, bool) or (isinstance(value, str) and value.strip().lower() in TRUE + FALSE)
+
+
+def _is_udev(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(e, Mapping) and "symlink" in e for e in value)
+
+
+PREFIX = "rosdeploy_"
+COMPOSE_CHOICES = ("auto", "v1", "v2")
+_ASCII_INT = re.compile(r"[0-9]+")
+
+CONVERTERS: dict[str, Callable[[Any], Any]] = {
+    "address": _to_address, "port": _to_port, "user": _to_user, "key_file": _to_local_path}
+# Host field -> the names Ansible's ssh plugin reads for it, lowest precedence first.
+CONNECTION: dict[str, tuple[str, ...]] = {
+    "address": ("ansible_host", "ansible_ssh_host"),
+    "port": ("ansible_port", "ansible_ssh_port"),
+    "user": ("ansible_user", "ansible_ssh_user"),
+    "key_file": ("ansible_private_key_file", "ansible_ssh_private_key_file"),
+}
+# rosdeploy's own vars: `rosdeploy_NAME` always; the short NAME too, unless another tool's value sits there.
+OWN_VARS: dict[str, Var] = {
+    "ros_domain_id": Var("ros_domain_id", _to_domain_id),   # no other tool's name: always checked
+    "ros_network": Var("network", _to_network, lambda v: isinstance(v, str), "network name (a string)"),
+    "devices": Var("devices", _to_devices, lambda v: isinstance(v, Mapping),
+                   "devices map (logical name: /dev/... path)"),
+    "gpu": Var("gpu", _to_bool, _is_bool, "gpu flag (true or false)"),
+    "udev": Var("udev", _to_udev, _is_udev, "udev list (entries with symlink, subsystem, vendor, product)"),
+}
+# Read from Host.vars by transport, deploy and render; checked (and paths made absolute) here.
+PREFIXED_ONLY: dict[str, Var] = {
+    "rosdeploy_known_hosts": Var(None, _to_local_path),
+    "rosdeploy_deploy_root": Var(None, _to_remote_root),
+    "rosdeploy_home": Var(None, _to_remote_root),
+    "rosdeploy_compose": Var(None, _to_compose),
+}
+PREFIXED_VARS = frozenset({*(PREFIX + name for name in OWN_VARS), *PREFIXED_ONLY})
+CONSUMED_VARS = (*OWN_VARS, *PREFIXED_VARS, *(var for names in CONNECTION.values() for var in names))

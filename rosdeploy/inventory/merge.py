@@ -1,0 +1,143 @@
+"""Assembling frozen hosts and groups: Ansible's variable precedence, lowest first."""
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from itertools import chain
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator
+
+from rosdeploy.errors import Problem
+from rosdeploy.inventory.draft import Draft, GroupDraft, HostDraft, Layer, Origin, split_where
+from rosdeploy.inventory.graph import Graph
+from rosdeploy.inventory.hostvars import BadValue, check_layer, host_fields
+from rosdeploy.inventory.model import Group, Inventory
+from rosdeploy.inventory.templating import HostVars, TemplateFailed
+from rosdeploy.model import Host, frozen_map
+
+
+def assemble(draft: Draft, graph: Graph, root: Path, base: Path) -> Inventory:
+    for layer in _all_layers(draft):
+        errors, warnings = check_layer(layer)
+        draft.problems.extend(errors)
+        draft.warnings.extend(warnings)
+    direct = _direct_groups(draft)
+    host_groups = {name: _host_groups(direct[name], graph) for name in draft.hosts}
+    ordered = {name: ansible_order(name, draft) for name in draft.groups}
+    hostvars: dict[str, HostVars] = {}
+    magic = {"groups": {name: list(hosts) for name, hosts in ordered.items()}, "hostvars": hostvars}
+    hosts: dict[str, Host] = {}
+    for name, host in draft.hosts.items():
+        built = _build_host(host, host_groups[name], draft, magic)
+        if built is not None:
+            hosts[name] = built
+    if not draft.hosts and not draft.problems:
+        draft.problems.append(Problem(str(base), None, "", "the inventory defines no hosts: add robots "
+                                                           "under a group's hosts:"))
+    groups = {name: _group(group, ordered[name], graph) for name, group in draft.groups.items()}
+    return Inventory(str(root), frozen_map(hosts), frozen_map(groups), _folded(draft.warnings))
+
+
+def ansible_order(name: str, draft: Draft) -> tuple[str, ...]:
+    """A group's hosts in Ansible's order (Group.get_hosts): its own hosts as added, then its
+    descendants' level by level, children in the order they were added; `group[0]` indexes this."""
+    seen_groups, level, out = {name}, [name], dict.fromkeys(draft.groups[name].hosts)
+    while level:
+        following = []
+        for group in level:
+            for child in draft.groups[group].children:
+                if child not in seen_groups:
+                    seen_groups.add(child)
+                    following.append(child)
+                    out.update(dict.fromkeys(draft.groups[child].hosts))
+        level = following
+    return tuple(out)
+
+
+def _folded(warnings: list[Problem]) -> tuple[Problem, ...]:
+    """One warning per place and key: a group var another tool owns is said once, not once per robot."""
+    by_place: dict[tuple[str, int | None, str, str], list[Problem]] = {}
+    for problem in warnings:
+        kind = problem.message.split(":", 1)[-1]
+        by_place.setdefault((problem.file, problem.line, problem.key, kind), []).append(problem)
+    out = []
+    for found in by_place.values():
+        first = found[0]
+        more = f" (and {len(found) - 1} other robots)" if len(found) > 1 else ""
+        out.append(replace(first, message=first.message + more))
+    return tuple(out)
+
+
+def _all_layers(draft: Draft) -> Iterator[Layer]:
+    for entity in chain(draft.groups.values(), draft.hosts.values()):
+        yield from entity.inline
+        yield from entity.files
+
+
+def _direct_groups(draft: Draft) -> dict[str, list[str]]:
+    """Host -> the groups listing it directly: one pass, not one scan of all groups per host."""
+    index: dict[str, list[str]] = {name: [] for name in draft.hosts}
+    for group_name, group in draft.groups.items():
+        for host in group.hosts:
+            index[host].append(group_name)
+    return index
+
+
+def _host_groups(direct: list[str], graph: Graph) -> tuple[str, ...]:
+    every = frozenset({"all"}).union(*(graph.ancestors[g] for g in direct))
+    return tuple(sorted(every, key=graph.order.__getitem__))
+
+
+def _group(group: GroupDraft, hosts: tuple[str, ...], graph: Graph) -> Group:
+    merged, _ = _merge(chain(group.inline, group.files))
+    return Group(group.name, hosts, tuple(group.children), graph.parents[group.name],
+                 frozen_map(merged), group.source)
+
+
+def _merge(layers: Iterable[Layer]) -> tuple[dict[str, Any], dict[str, Origin]]:
+    merged: dict[str, Any] = {}
+    origins: dict[str, Origin] = {}
+    for layer in layers:
+        merged.update(layer.vars)
+        origins.update(dict.fromkeys(layer.vars, layer.origin))
+    merged.pop("ansible_group_priority", None)  # a group setting, not a variable (as in Ansible)
+    return merged, origins
+
+
+def _host_layers(host: HostDraft, groups: tuple[str, ...], draft: Draft) -> list[Layer]:
+    """Ansible's precedence, lowest first (see the module docstring)."""
+    others = [draft.groups[g] for g in groups if g != "all"]
+    root = draft.groups["all"]
+    return [*root.inline, *chain.from_iterable(g.inline for g in others),
+            *root.files, *chain.from_iterable(g.files for g in others),
+            *host.inline, *host.files]
+
+
+def _build_host(host: HostDraft, groups: tuple[str, ...], draft: Draft, magic: dict[str, Any]) -> Host | None:
+    layers = _host_layers(host, groups, draft)
+    merged, origins = _merge(layers)
+    source_file = os.path.abspath(split_where(host.source)[0])
+    hostvars = HostVars(host.name, merged, origins, {
+        **magic, "inventory_hostname": host.name, "inventory_hostname_short": host.name.split(".")[0],
+        "inventory_file": source_file, "inventory_dir": os.path.dirname(source_file),
+        "group_names": sorted(g for g in groups if g != "all")})
+    magic["hostvars"][host.name] = hostvars
+    fields, normalised, errors, warnings = host_fields(host.name, _reader(hostvars), origins)
+    draft.problems.extend(errors)
+    draft.warnings.extend(warnings)
+    if errors:
+        return None
+    for key, value in normalised.items():
+        hostvars.override(key, value)
+    secrets = frozenset().union(*(layer.secrets for layer in layers))
+    return Host(name=host.name, groups=groups, vars=hostvars, secret_values=secrets,
+                source=host.source, **fields)
+
+
+def _reader(hostvars: HostVars) -> Callable[[str], Any]:
+    def read(var: str) -> Any:
+        try:
+            return hostvars.value(var)
+        except TemplateFailed as failed:
+            raise BadValue(failed.message if failed.key == var else f"{failed.key}: {failed.message}") from None
+    return read

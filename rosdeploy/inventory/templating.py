@@ -1,0 +1,215 @@
+"""Templated inventory values, resolved lazily with Ansible's inventory vars, in a sandbox.
+
+    ansible_ssh_private_key_file: "{{ inventory_dir }}/../keys/id_ed25519"
+
+Like Ansible, a value is templated when it is read, with the host's own vars
+plus `inventory_hostname`, `inventory_hostname_short`, `inventory_dir`,
+`inventory_file`, `group_names`, `groups` and `hostvars`; a value that is one
+`{{ expression }}` keeps the expression's type (Ansible 2.19 does the same).
+
+A host_vars file may be written by another system, so a template must not be
+able to run code: Jinja2's SandboxedEnvironment (no `__globals__`, no
+`__init__`, no private attributes), no globals but `range` and `dict`, no
+`lookup`/`env` (nothing reads the process environment), and StrictUndefined.
+"""
+from __future__ import annotations
+
+import posixpath
+import re
+import threading
+from typing import Any, Iterator, Mapping
+
+import jinja2
+
+from rosdeploy.sandbox import Sandbox
+
+from rosdeploy.errors import InventoryError, Problem
+from rosdeploy.inventory.draft import Origin
+from rosdeploy.yamlsrc import Unsafe
+
+_MARKERS = ("{{", "{%", "{#")
+_WHOLE = re.compile(r"^\{\{(?P<expr>.*)\}\}$", re.S)
+
+
+class TemplateFailed(Exception):
+    """A value could not be templated; `key` is the var whose template failed."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(message)
+        self.key = key
+        self.message = message
+
+
+class UnresolvedVar(InventoryError, jinja2.UndefinedError):
+    """Using a var whose template failed: an input error, and, inside a fleet template, a
+    template error the renderer reports like any other."""
+
+    def __init__(self, problem: Problem) -> None:
+        InventoryError.__init__(self, [problem])
+
+
+class Unresolved(jinja2.StrictUndefined):
+    """A var whose template fails (`{{ ansible_facts.. }}` and `{{ playbook_dir }}` exist only in a
+    play): Ansible fails only where it is used, so this is harmless until something reads it, then
+    a clean error naming file and key. The vars rosdeploy itself reads are checked at load."""
+
+
+def _bool(value: Any) -> bool:
+    return str(value).strip().lower() in ("1", "true", "yes", "on", "y", "t")
+
+
+def _environment() -> Sandbox:
+    # The fleet file's sandbox (bounded `*`, `**`, `%` and format widths), so a host_vars value
+    # written by another system can no more exhaust memory than a fleet value can. Only the
+    # sandbox's own bounded `range` and `dict` stay as globals: fewer objects, fewer ways in.
+    env = Sandbox(keep_trailing_newline=True)
+    env.globals = {"range": env.globals["range"], "dict": dict}
+    # A few of Ansible's filters that inventories use for paths and names; all pure.
+    env.filters.update({"basename": posixpath.basename, "dirname": posixpath.dirname, "bool": _bool,
+                        "regex_replace": lambda v, p, r="": re.sub(p, r, str(v)),
+                        "ternary": lambda v, a, b=None: a if v else b})
+    return env
+
+
+_ENV = _environment()
+_LOCAL = threading.local()
+
+
+def is_template(value: Any) -> bool:
+    return isinstance(value, str) and not isinstance(value, Unsafe) and any(m in value for m in _MARKERS)
+
+
+class HostVars(Mapping[str, Any]):
+    """One host's merged vars, each templated on first read (then cached).
+
+    `magic` holds inventory_hostname & co; `hostvars` is filled in once every host
+    exists, so templates may look at other hosts as in Ansible.
+    """
+
+    def __init__(self, name: str, raw: Mapping[str, Any], origins: Mapping[str, Origin],
+                 magic: Mapping[str, Any]) -> None:
+        self._name = name
+        self._raw = dict(raw)
+        self._origins = origins
+        self._magic = dict(magic)
+        self._done: dict[str, Any] = {}
+        self._overrides: dict[str, Any] = {}
+
+    def override(self, key: str, value: Any) -> None:
+        """A value rosdeploy normalised (an absolute path): what every reader then sees."""
+        self._overrides[key] = value
+
+    @property
+    def raw(self) -> Mapping[str, Any]:
+        return self._raw
+
+    def __getitem__(self, key: str) -> Any:
+        if getattr(_LOCAL, "stack", None):   # inside another var's template: let it report
+            return self.value(key)
+        try:
+            return self.value(key)
+        except TemplateFailed as failed:
+            origin = self._origins.get(failed.key) or self._origins[key]
+            problem = origin.problem((failed.key,), f"robot {self._name!r}: {failed.message}")
+            return Unresolved(hint=problem, name=key, exc=UnresolvedVar)
+
+    def value(self, key: str) -> Any:
+        """The templated value; TemplateFailed (naming the var) if it cannot be templated."""
+        if key in self._overrides:
+            return self._overrides[key]
+        if key in self._done:
+            return self._done[key]
+        value = self._template(key, self._raw[key])
+        self._done[key] = value
+        return value
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._raw)
+
+    def __len__(self) -> int:
+        return len(self._raw)
+
+    def __repr__(self) -> str:
+        return f"HostVars({self._name!r}, {len(self._raw)} vars)"
+
+    def _template(self, key: str, value: Any) -> Any:
+        stack: list[str] = getattr(_LOCAL, "stack", None) or []
+        if key in stack:
+            raise TemplateFailed(key, f"recursive loop: {' -> '.join([*stack, key])}")
+        _LOCAL.stack = [*stack, key]
+        try:
+            return _render(value, _Scope(self), key)
+        finally:
+            _LOCAL.stack = stack
+
+    def lookup(self, name: str) -> Any:
+        """What a template sees for `name`: the magic vars first, then the host's vars."""
+        if name in self._magic:
+            return self._magic[name]
+        return self.value(name)
+
+    def knows(self, name: str) -> bool:
+        return name in self._magic or name in self._raw
+
+
+class _Scope(dict):
+    """Jinja2 reads names through this: each var is templated only if a template uses it."""
+
+    def __init__(self, host: HostVars) -> None:
+        super().__init__()
+        self._host = host
+
+    def __contains__(self, name: object) -> bool:
+        return isinstance(name, str) and self._host.knows(name)
+
+    def __getitem__(self, name: str) -> Any:
+        if not self._host.knows(name):
+            raise KeyError(name)
+        return self._host.lookup(name)
+
+    def get(self, name: str, default: Any = None) -> Any:
+        return self[name] if name in self else default
+
+
+def _render(value: Any, scope: _Scope, key: str) -> Any:
+    if isinstance(value, dict):
+        return {k: _render(v, scope, key) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_render(v, scope, key) for v in value]
+    if not is_template(value):
+        return value
+    try:
+        whole = _WHOLE.match(value)
+        if whole and "{{" not in whole["expr"] and "}}" not in whole["expr"]:
+            return _expression(whole["expr"], scope)
+        template = _ENV.from_string(value)
+        context = template.new_context(scope, shared=True)
+        return _ENV.concat(template.root_render_func(context))
+    except TemplateFailed:
+        raise
+    except jinja2.TemplateError as exc:
+        raise TemplateFailed(key, f"cannot template {value!r}: {_reason(exc)}") from None
+    except RecursionError:
+        raise TemplateFailed(key, f"cannot template {value!r}: the templates refer to each other "
+                                  "without end") from None
+    except (TypeError, ValueError, ArithmeticError, LookupError, AttributeError) as exc:
+        raise TemplateFailed(key, f"cannot template {value!r}: {exc}") from None
+
+
+def _expression(expr: str, scope: _Scope) -> Any:
+    """`{{ expr }}` alone: the expression's own value, not its text (so a number stays a number)."""
+    compiled = _ENV.compile_expression(expr, undefined_to_none=False)
+    template = compiled._template
+    context = template.new_context(scope, shared=True)
+    for _ in template.root_render_func(context):
+        pass
+    result = context.vars["result"]
+    if isinstance(result, jinja2.Undefined):
+        result._fail_with_undefined_error()
+    return result
+
+
+def _reason(exc: jinja2.TemplateError) -> str:
+    if isinstance(exc, jinja2.sandbox.SecurityError):
+        return f"refused by the template sandbox ({exc.message}): inventory templates may read vars only"
+    return exc.message or type(exc).__name__

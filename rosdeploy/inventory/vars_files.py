@@ -1,0 +1,92 @@
+"""`group_vars/` and `host_vars/` beside the inventory: files and directories of them."""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from rosdeploy import suggest
+from rosdeploy.errors import Problem
+from rosdeploy.inventory.discovery import Reader
+from rosdeploy.inventory.draft import Draft, Layer, make_layer
+from rosdeploy.inventory.known import SKIPPED_EXTS, VARS_EXTS, YAML_EXTS
+
+
+def attach_vars_files(base: Path, reader: Reader, draft: Draft) -> None:
+    for kind, entities in (("group_vars", draft.groups), ("host_vars", draft.hosts)):
+        for name, files in _vars_files(base / kind, draft).items():
+            target = entities.get(name)
+            if target is None:
+                if kind == "group_vars" and files:
+                    _unknown_group_vars(files[0], name, list(entities), draft)
+                continue
+            for path in files:
+                layer = _read_vars_file(path, reader, draft)
+                if layer is not None:
+                    target.files.append(layer)
+
+
+def _vars_files(folder: Path, draft: Draft) -> dict[str, list[Path]]:
+    """Entity name → its vars files in load order, chosen as Ansible's find_vars_files does."""
+    if not folder.is_dir():
+        return {}
+    candidates: dict[str, list[Path]] = {}
+    for entry in sorted(folder.iterdir()):
+        if entry.name.startswith(".") or entry.name.endswith("~"):
+            continue
+        if entry.suffix in YAML_EXTS and entry.is_file():
+            candidates.setdefault(entry.stem, []).append(entry)
+        elif not entry.name.endswith(SKIPPED_EXTS):   # NAME/ or NAME: host names may hold dots
+            candidates.setdefault(entry.name, []).append(entry)
+    out: dict[str, list[Path]] = {}
+    for name, found in candidates.items():
+        # Ansible takes the first of NAME (file or directory), NAME.yml, NAME.yaml, NAME.json.
+        found.sort(key=lambda p: VARS_EXTS.index(p.suffix) if p.name != name else -1)
+        chosen = f"{found[0]}{'/' if found[0].is_dir() else ''}"
+        for ignored in found[1:]:
+            draft.warnings.append(Problem(str(ignored), None, "", f"ignored: {chosen} already holds the vars of "
+                                          f"{name!r}, and Ansible reads only the first of NAME, NAME.yml, "
+                                          "NAME.yaml, NAME.json; merge them", severity="warning"))
+        out[name] = _dir_files(found[0], draft, set()) if found[0].is_dir() else [found[0]]
+    return out
+
+
+def _dir_files(folder: Path, draft: Draft, seen: set[str]) -> list[Path]:
+    real = os.path.realpath(folder)
+    if real in seen:   # a symlink back up the tree: Ansible would follow it ~40 levels deep
+        draft.warnings.append(Problem(str(folder), None, "", f"symlink loop (back to {real}): its files are "
+                                      "read once; remove the link", severity="warning"))
+        return []
+    seen = seen | {real}
+    found: list[Path] = []
+    for entry in sorted(folder.iterdir()):
+        if entry.name.startswith(".") or entry.name.endswith("~"):
+            continue
+        if entry.is_dir() and not entry.suffix:
+            found.extend(_dir_files(entry, draft, seen))
+        elif entry.is_file() and entry.suffix in VARS_EXTS:
+            found.append(entry)
+    return list({os.path.realpath(path): path for path in reversed(found)}.values())[::-1]   # each file once
+
+
+def _read_vars_file(path: Path, reader: Reader, draft: Draft) -> Layer | None:
+    origin = reader.doc(path, draft.problems)
+    if origin is None or origin.doc.data is None:
+        return None
+    if not isinstance(origin.doc.data, dict):
+        draft.problems.append(origin.problem((), "a vars file must be a mapping of name: value"))
+        return None
+    return make_layer(origin.doc.data, origin)
+
+
+def _unknown_group_vars(path: Path, name: str, known: list[str], draft: Draft) -> None:
+    # Vars for a group another inventory defines are normal (shared group_vars); only a
+    # misspelt name is worth stopping for, as its vars would silently never apply.
+    # Names that differ only in numbers (site_3 vs site_1) are other groups, not typos;
+    # host_vars are not judged at all: leftovers of retired robots are common and harmless.
+    close = suggest.closest(name, known, cutoff=0.75)
+    if close and re.sub(r"\d+", "#", close) != re.sub(r"\d+", "#", name):
+        draft.problems.append(Problem(str(path), None, "", f"no group named {name!r} in the inventory: "
+                                      f"did you mean {close!r}? rename the file or directory"))
+
+

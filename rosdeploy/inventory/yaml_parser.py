@@ -1,0 +1,93 @@
+"""YAML inventories: `all:` / `children:` / `hosts:` / `vars:`, like Ansible's yaml plugin."""
+from __future__ import annotations
+
+from typing import Any
+
+from rosdeploy.inventory.draft import Draft, Origin, make_layer
+from rosdeploy.inventory.hostvars import CONSUMED_VARS
+from rosdeploy.inventory.known import GROUP_KEYS, did_you_mean_hint
+from rosdeploy.inventory.ranges import add_hosts, valid_name
+
+
+def parse_yaml(root: Origin, draft: Draft) -> None:
+    doc = root.doc
+    if doc.data is None:
+        return
+    if not isinstance(doc.data, dict):
+        draft.problems.append(doc.problem((), "an inventory must be a mapping of group names, "
+                                              "starting with `all:`"))
+        return
+    if "plugin" in doc.data:
+        draft.problems.append(doc.problem(("plugin",), "inventory plugins are not supported: "
+                                                       "export the hosts to a YAML inventory"))
+        return
+    for name, entry in doc.data.items():
+        if name in GROUP_KEYS:
+            draft.problems.append(doc.problem((name,), f"`{name}:` at the top level: put it under "
+                                                       "a group, e.g. `all:`"))
+            continue
+        _yaml_group(root.child(name), str(name), entry, draft)
+
+
+def _yaml_group(origin: Origin, name: str, entry: Any, draft: Draft) -> None:
+    if not valid_name(name, origin, draft, "group"):
+        return
+    draft.group(name, origin.where)
+    entry = _as_mapping(origin, entry, f"group {name!r} must be a mapping with hosts:, vars: and/or "
+                                       "children:", draft)
+    for key, value in entry.items():
+        sub = origin.child(key)
+        if key == "hosts":
+            _yaml_hosts(sub, name, value, draft)
+        elif key == "vars":
+            _yaml_group_vars(sub, name, value, draft)
+        elif key == "children":
+            _yaml_children(sub, name, value, draft)
+        else:
+            draft.problems.append(sub.problem((), f"unknown key in group {name!r}: a group holds only "
+                                                  f"hosts:, vars: and children:{_misplaced_hint(key)}"))
+
+
+def _misplaced_hint(key: Any) -> str:
+    if str(key) in CONSUMED_VARS or str(key).startswith("ansible_"):
+        # The classic slip: a host indented under children:, so it was read as a group.
+        return ("; this looks like a variable: put it under vars:, or, if the group above is really a "
+                "host, list it under hosts:")
+    return did_you_mean_hint(key, GROUP_KEYS)
+
+
+def _as_mapping(origin: Origin, value: Any, message: str, draft: Draft) -> dict[Any, Any]:
+    """`value` if it is a mapping, {} for null (Ansible allows `hosts:` with nothing), else report."""
+    if value is None:
+        return {}
+    if isinstance(value, dict):
+        return value
+    draft.problems.append(origin.problem((), message))
+    return {}
+
+
+def _yaml_hosts(origin: Origin, group: str, hosts: Any, draft: Draft) -> None:
+    hosts = _as_mapping(origin, hosts, "hosts: must be a mapping of host names, each followed by ':' "
+                                       "(and its vars, or nothing)", draft)
+    for raw, host_vars in hosts.items():
+        host_origin = origin.child(raw)
+        host_vars = _as_mapping(host_origin, host_vars, "host vars must be a mapping of name: value "
+                                                        "(or nothing after the ':')", draft)
+        add_hosts(str(raw), group, dict(host_vars), host_origin, draft)
+
+
+def _yaml_group_vars(origin: Origin, group: str, data: Any, draft: Draft) -> None:
+    data = _as_mapping(origin, data, "vars: must be a mapping of name: value", draft)
+    if data:
+        draft.groups[group].inline.append(make_layer(data, origin))
+
+
+def _yaml_children(origin: Origin, group: str, children: Any, draft: Draft) -> None:
+    children = _as_mapping(origin, children, "children: must be a mapping of group names, each followed "
+                                             "by ':'", draft)
+    for child, entry in children.items():
+        child_origin = origin.child(child)
+        draft.groups[group].children.setdefault(str(child), child_origin)
+        _yaml_group(child_origin, str(child), entry, draft)
+
+
