@@ -19,7 +19,7 @@ import select
 import socket
 import time
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Callable, Protocol
 
 import paramiko
 from fabric import Config, Connection
@@ -35,7 +35,8 @@ from rosdeploy.model import Host
 logging.getLogger("paramiko").addHandler(logging.NullHandler())
 
 KEEPALIVE = 2.0       # s: an SSH keepalive after this long without traffic...
-LINK_TIMEOUT = 8.0    # s: ...and the link counts as lost when nothing sent is acknowledged for this long
+LINK_TIMEOUT = 6.0    # s: ...and the link counts as lost when nothing sent is acknowledged for this long
+LINK_QUIET = 4.0      # s without a byte on a command's channel before asking whether the robot answers
 
 
 @dataclass(frozen=True)
@@ -189,7 +190,7 @@ class SSHTransport:
             if command.stdin is not None:
                 chan.sendall(command.stdin)
                 chan.shutdown_write()
-            out, err = _drain(chan, started + timeout)
+            out, err = _drain(chan, started + timeout, lambda: _answers(self._conn.transport))
             code = chan.recv_exit_status()
             if code == -1 and not self._conn.transport.is_active():
                 raise EOFError("the SSH connection dropped")
@@ -333,11 +334,33 @@ def _parsed_host_keys(path: str) -> KnownHosts:
         return KnownHosts(paramiko.HostKeys(), frozenset(), ())
 
 
-def _drain(chan: paramiko.Channel, deadline: float) -> tuple[str, str]:
-    """Read stdout and stderr together until the remote side closes or the deadline passes."""
+def _answers(transport: paramiko.Transport) -> bool:
+    """Does the robot still answer on this connection? A channel open is answered by sshd
+    itself (no process starts on the robot). A TCP-level timeout cannot tell when a proxy
+    (ProxyJump, docker-proxy, a NAT box) acknowledges for the robot."""
+    try:
+        transport.open_session(timeout=LINK_TIMEOUT).close()
+    except paramiko.ChannelException:
+        return True                  # refused (sshd's MaxSessions): an answer all the same
+    except (paramiko.SSHException, OSError, EOFError):
+        return False
+    return True
+
+
+def _drain(chan: paramiko.Channel, deadline: float, answers: Callable[[], bool] | None = None) -> tuple[str, str]:
+    """Read stdout and stderr together until the remote side closes or the deadline passes.
+    `answers`: asked after LINK_QUIET s without a byte; False ends the read as a lost link."""
     out: list[bytes] = []
     err: list[bytes] = []
+    heard = time.monotonic()
     while True:
+        if chan.recv_ready() or chan.recv_stderr_ready():
+            heard = time.monotonic()
+        elif answers is not None and time.monotonic() - heard >= LINK_QUIET:
+            if not answers():
+                chan.close()
+                raise EOFError(f"the robot stopped answering (no reply within {LINK_TIMEOUT:g}s)")
+            heard = time.monotonic()
         while chan.recv_ready():
             out.append(chan.recv(65536))
         while chan.recv_stderr_ready():

@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -103,9 +105,10 @@ class Lane:
         if case.at == "activate":
             env[PAUSE_BEFORE_ACTIVATE] = "60"
         fleet_file = self.files[case.mode]
+        document = tempfile.TemporaryFile(mode="w+")
         ctl = subprocess.Popen([sys.executable, "-m", "rosdeploy", "--json", "apply", str(fleet_file), "--yes",
                                 "--limit", self.robot, "--version", case.version],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=env)
+                               stdout=document, stderr=subprocess.PIPE, text=True, cwd=REPO, env=env)
         progress = self.fault_at(ctl, case)
         seen = None
         if case.fault == "kill":
@@ -113,17 +116,12 @@ class Lane:
             ctl.wait()
             seen = status_of(fleet_file, self.robot)
         elif case.fault == "cut":
-            try:
-                out, err = ctl.communicate(timeout=GATE + 30)     # the controller notices by itself
-            except subprocess.TimeoutExpired:
-                ctl.kill()
-                out, err = ctl.communicate()
-                problems.append("the controller did not notice the cut link")
+            out, err = self.ended(ctl, document, GATE + 30, problems)    # the controller notices by itself
             simulator.heal(self.robot)
             seen = status_of(fleet_file, self.robot)
             self.check_report(out, err, problems)
         else:
-            out, err = ctl.communicate(timeout=120)                # the robot is back: its guard acts
+            out, err = self.ended(ctl, document, 120, problems)          # the robot is back: its guard acts
             seen = status_of(fleet_file, self.robot)
             self.check_report(out, err, problems)
         if seen.get("state") not in ("INTERRUPTED", "RECOVERING"):
@@ -137,20 +135,50 @@ class Lane:
         return problems, outcome
 
     def fault_at(self, ctl: subprocess.Popen, case: Case) -> str:
-        """Read the controller's progress until the case's step; then put the fault in."""
+        """Read the controller's progress until the case's step; then put the fault in.
+
+        `health`: the gate's wait for healthy services. A release whose first start level
+        never gets healthy (1.2.0-bad) spends the whole gate inside `start` (the level's
+        wait), and never prints `health`: the fault then comes 6 s into `start`."""
         marker = {"pull": " pull", "start": " start ", "health": " health", "activate": "pausing"}[case.at]
-        seen = []
-        for line in ctl.stderr:
+        lines: queue.Queue[str] = queue.Queue()
+        threading.Thread(target=lambda: [lines.put(line) for line in ctl.stderr], daemon=True).start()
+        seen: list[str] = []
+        started = None
+        while True:
+            wait = None if started is None else max(0.0, started + 6.0 - time.monotonic())
+            try:
+                line = lines.get(timeout=wait)
+            except queue.Empty:
+                break                                    # 6 s into the start's health wait
             seen.append(line)
             if marker in line:
                 break
-        if case.at in ("start", "health"):
+            if case.at == "health" and " start " in line:
+                started = time.monotonic()
+        if case.at in ("start", "health") and marker in seen[-1]:
             time.sleep(1.0)          # well inside the step
         if case.fault == "cut":
             simulator.cut(self.robot)
         elif case.fault == "reboot":
             simulator.reboot(self.robot)
+        self.rest = lines
         return "".join(seen)
+
+    def ended(self, ctl: subprocess.Popen, document, timeout: float, problems: list[str]) -> tuple[str, str]:
+        """The controller's result document and the rest of its stderr, once it ended by itself."""
+        try:
+            ctl.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            ctl.kill()
+            ctl.wait()
+            problems.append(f"the controller did not end by itself within {timeout:g}s of the fault")
+        time.sleep(0.5)              # the reader thread takes the last lines
+        err = []
+        while not self.rest.empty():
+            err.append(self.rest.get())
+        document.seek(0)
+        return document.read(), "".join(err)
 
     @staticmethod
     def check_report(out: str, err: str, problems: list[str]) -> None:
