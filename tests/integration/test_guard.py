@@ -32,7 +32,6 @@ pytestmark = pytest.mark.integration
 GATE = 30            # health.timeout of the tests' fleet files (s)
 MARGIN = 8           # rollback.guard_margin
 COMMAND_TIMEOUT = 20  # ssh.command_timeout: the guard's deadline before the start
-DIR = "/home/robot/rosdeploy/demo"
 IMAGES = ("registry.local:5000/demo/driver:{v}", "registry.local:5000/demo/perception:{v}")
 
 
@@ -42,15 +41,25 @@ class Case:
     at: str             # the progress step the fault hits: pull, start, health, activate
     version: str        # 1.1.0 | 1.2.0-bad
     mode: str = "revert"
+    as_root: bool = False   # SSH as root with Compose v1 (else the docker-group user `robot`, v2)
 
     @property
     def name(self) -> str:
-        return f"{self.fault}@{self.at} {self.version} ({self.mode})"
+        return f"{self.fault}@{self.at} {self.version} ({self.mode}{', root, compose v1' if self.as_root else ''})"
+
+    @property
+    def fleet(self) -> str:
+        return "root" if self.as_root else self.mode
+
+    @property
+    def dir(self) -> str:
+        return ("/root" if self.as_root else "/home/robot") + "/rosdeploy/demo"
 
 
 LANES = {
     "robot1": [Case("kill", "pull", "1.1.0"), Case("kill", "start", "1.2.0-bad"), Case("kill", "health", "1.1.0"),
-               Case("cut", "health", "1.2.0-bad"), Case("reboot", "health", "1.1.0")],
+               Case("cut", "health", "1.2.0-bad"), Case("reboot", "health", "1.1.0"),
+               Case("kill", "health", "1.2.0-bad", as_root=True)],
     "robot2": [Case("kill", "pull", "1.2.0-bad"), Case("kill", "start", "1.1.0"), Case("kill", "health", "1.2.0-bad"),
                Case("reboot", "start", "1.2.0-bad"), Case("kill", "health", "1.1.0", "finish")],
     "robot3": [Case("kill", "activate", "1.1.0"), Case("cut", "health", "1.1.0"), Case("reboot", "start", "1.1.0"),
@@ -69,8 +78,8 @@ def status_of(fleet_file: Path, robot: str) -> dict:
     return json.loads(out.stdout)["robots"][0]
 
 
-def guard_gone(shell: RobotShell) -> bool:
-    return shell.run(f"docker ps -aq --filter label=rosdeploy.guard; ls {DIR}/.guard/state {DIR}/.guard/acting "
+def guard_gone(shell: RobotShell, folder: str) -> bool:
+    return shell.run(f"docker ps -aq --filter label=rosdeploy.guard; ls {folder}/.guard/state {folder}/.guard/acting "
                      "2>/dev/null || true").strip() == ""
 
 
@@ -91,20 +100,29 @@ class Lane:
 
     def run(self, cases: list[Case]) -> None:
         for case in cases:
-            problems, outcome = self.one(case)
+            try:
+                problems, outcome = self.one(case)
+            except Exception as exc:         # one case's failure must not hide the others'
+                problems, outcome = [f"{type(exc).__name__}: {exc}"[:600]], "error"
             self.rows.append((case.name, outcome, "; ".join(problems)))
 
     def one(self, case: Case) -> tuple[list[str], str]:
         problems: list[str] = []
         shell = self.shell()
-        before = shell.current()
+        if case.as_root:     # the robot's project handed to root and Compose v1: from 1.0.0 again
+            shell.run("ids=$(docker ps -aq --filter label=com.docker.compose.project=demo); "
+                      "[ -z \"$ids\" ] || docker rm -f $ids >/dev/null")
+            base = cli("--json", "apply", self.files["root"], "--yes", "--limit", self.robot)
+            assert base.returncode == 0, base.stdout[-2000:]
+        home = case.dir.rsplit("/rosdeploy/", 1)[0]
+        before = shell.current(home=home)
         if case.at == "pull":       # the target's images are pulled again, so the kill lands in the pull
             shell.run("docker rmi " + " ".join(i.format(v=case.version) for i in IMAGES) + " >/dev/null 2>&1 || true")
         shell.close()
         env = dict(os.environ, PYTHONPATH=str(REPO))
         if case.at == "activate":
             env[PAUSE_BEFORE_ACTIVATE] = "60"
-        fleet_file = self.files[case.mode]
+        fleet_file = self.files[case.fleet]
         document = tempfile.TemporaryFile(mode="w+")
         ctl = subprocess.Popen([sys.executable, "-m", "rosdeploy", "--json", "apply", str(fleet_file), "--yes",
                                 "--limit", self.robot, "--version", case.version],
@@ -127,7 +145,7 @@ class Lane:
         if seen.get("state") not in ("INTERRUPTED", "RECOVERING"):
             problems.append(f"status said {seen.get('state')!r} ({seen.get('reason')!r}) while interrupted")
         outcome = self.settle(case, before, problems)
-        again = cli("--json", "apply", self.files["revert"], "--yes", "--limit", self.robot)
+        again = cli("--json", "apply", self.files["root" if case.as_root else "revert"], "--yes", "--limit", self.robot)
         if again.returncode != 0:
             problems.append(f"the next apply did not converge: {again.stdout[-400:]} {again.stderr[-400:]}")
         if "Traceback" in progress:
@@ -197,12 +215,13 @@ class Lane:
         """Wait for the guard to end the deploy, then read the robot's real state."""
         deadline = time.monotonic() + GATE + MARGIN + COMMAND_TIMEOUT + 60
         shell = self.shell()
-        while not guard_gone(shell) and time.monotonic() < deadline:
+        while not guard_gone(shell, case.dir) and time.monotonic() < deadline:
             time.sleep(2)
-        if not guard_gone(shell):
+        if not guard_gone(shell, case.dir):
             problems.append("the guard did not end the deploy by its deadline")
-        current = shell.current()
-        history = shell.history()
+        home = case.dir.rsplit("/rosdeploy/", 1)[0]
+        current = shell.current(home=home)
+        history = shell.history(home=home)
         last = history[-1] if history else {}
         if not all_healthy(shell, settle=30):
             problems.append("not healthy")
@@ -210,7 +229,7 @@ class Lane:
             problems.append(f"running {running_release(shell)} but current is {current}")
         if not any(e.get("release") == current and e.get("result") == "active" for e in history):
             problems.append(f"current {current} was never activated")
-        if shell.run(f"test -e {DIR}/.lock && echo held || true").strip():
+        if shell.run(f"test -e {case.dir}/.lock && echo held || true").strip():
             problems.append("a lock is left")
         want = "guard-finish" if case.mode == "finish" and case.version == "1.1.0" else "guard-rollback"
         if last.get("event") != want:
@@ -229,11 +248,13 @@ class Lane:
 
 def test_a_deploy_ends_on_a_gated_release_whatever_happens_to_its_controller(fleet, tmp_path: Path) -> None:
     inventory = write_inventory(fleet, tmp_path)
+    as_root = write_inventory(fleet, tmp_path, ansible_user="root", rosdeploy_compose="v1")
     files = {}
-    for mode in ("revert", "finish"):
-        folder = tmp_path / mode
+    for name, mode, hosts in (("revert", "revert", inventory), ("finish", "finish", inventory),
+                              ("root", "revert", as_root)):
+        folder = tmp_path / name
         folder.mkdir()
-        files[mode] = write_fleet(folder, inventory, health={"timeout": f"{GATE}s", "stable": "2s"},
+        files[name] = write_fleet(folder, hosts, health={"timeout": f"{GATE}s", "stable": "2s"},
                                   rollback={"guard": mode, "guard_margin": f"{MARGIN}s"},
                                   ssh={"command_timeout": f"{COMMAND_TIMEOUT}s"})
     # Every image on every robot first (a pull is not what is tested; `ssh.command_timeout`
