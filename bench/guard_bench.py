@@ -45,7 +45,7 @@ def cli(*args: str, env: dict | None = None) -> dict:
     try:
         return json.loads(out.stdout)
     except ValueError:
-        raise SystemExit(f"rosdeploy {' '.join(map(str, args))} failed: {out.stderr[-2000:]}")
+        raise SystemExit(f"rosdeploy {' '.join(map(str, args))} failed: {out.stderr[-2000:]}") from None
 
 
 def timed(fleet_file: Path, *args: str) -> tuple[float, dict]:

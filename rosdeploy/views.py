@@ -11,7 +11,6 @@ from rosdeploy.errors import RemoteError
 from rosdeploy.health import expected_services, settled
 from rosdeploy.model import Host, RenderedRelease
 from rosdeploy.commands import parse_sections
-from rosdeploy.guard import Guard
 from rosdeploy.owner import describe, holder_alive
 from rosdeploy.results import version_of
 from rosdeploy.robot import RobotState, unhealthy_services
@@ -97,7 +96,8 @@ def status_word(state: RobotState, problems: Mapping[str, str], lock_alive: bool
             return "INTERRUPTED", f"{where}; robot restarted mid-deploy ({who}); the guard {guard.will} now"
         cut_off = lock.get("run") != guard.run or lock_alive is False
         word = "INTERRUPTED" if cut_off else "DEPLOYING"
-        return word, f"{where}; {who}{' (its process is gone)' if lock_alive is False else ''}; "                      f"guard {guard.will} {when}"
+        gone = " (its process is gone)" if lock_alive is False else ""
+        return word, f"{where}; {who}{gone}; guard {guard.will} {when}"
     if lock:
         who = describe(lock)
         if lock_alive is False:

@@ -27,7 +27,8 @@ def test_the_state_file_is_read_with_the_last_value_of_a_key_winning() -> None:
     text = ("run=R1\nby=ana@laptop\nmode=finish\ntarget=1.1.0-b\nprevious=1.0.0-a\nphase=prepare\n"
             "deadline=100\nboot=b-1\nphase=start\ndeadline=160\n")
     g = guard.parse_guard(text)
-    assert (g.run, g.mode, g.phase, g.deadline, g.previous, g.acting) == ("R1", "finish", "start", 160, "1.0.0-a", False)
+    assert (g.run, g.mode, g.phase, g.deadline, g.previous, g.acting) == \
+           ("R1", "finish", "start", 160, "1.0.0-a", False)
     assert g.seconds_left(118) == 42 and g.seconds_left(200) == 0 and g.seconds_left(None) is None
 
 
@@ -60,7 +61,8 @@ def test_what_the_guard_will_do(fields: dict, will: str) -> None:
 
 # ------------------------------------------------------------------ status words
 
-def container(release: str, health: str | None = "healthy", status: str = "running", service: str = "driver") -> Container:
+def container(release: str, health: str | None = "healthy", status: str = "running",
+              service: str = "driver") -> Container:
     return Container(name=f"demo-{service}-1", service=service, image="i", status=status, health=health, restarts=0,
                      workdir=f"/home/robot/rosdeploy/demo/releases/{release}")
 
@@ -73,7 +75,8 @@ def state(current: str | None = "1.0.0-a", running: str | None = "1.0.0-a", guar
     return replace(st, containers=(container(running),) if running else ())
 
 
-ARMED = "run=R1\nby=ana@laptop\nmode=revert\nphase=start\ntarget=1.2.0-bad-c\nprevious=1.0.0-a\ndeadline=1042\nboot=b-1\n"
+ARMED = ("run=R1\nby=ana@laptop\nmode=revert\nphase=start\ntarget=1.2.0-bad-c\nprevious=1.0.0-a\n"
+         "deadline=1042\nboot=b-1\n")
 
 
 def test_the_issue_s_example_a_killed_controller_is_interrupted_with_the_guard_s_countdown() -> None:
@@ -148,7 +151,8 @@ def fake_docker(tmp_path: Path) -> dict:
     bin_dir.mkdir()
     (bin_dir / "docker").write_text('#!/bin/sh\necho "$*" >> "$DOCKER_LOG"\n')
     (bin_dir / "docker").chmod(0o755)
-    return {"HOME": str(tmp_path), "PATH": f"{bin_dir}:{os.environ['PATH']}", "DOCKER_LOG": str(tmp_path / "docker.log")}
+    return {"HOME": str(tmp_path), "PATH": f"{bin_dir}:{os.environ['PATH']}",
+            "DOCKER_LOG": str(tmp_path / "docker.log")}
 
 
 def sh(cmd: commands.Command, env: dict) -> subprocess.CompletedProcess:
@@ -159,7 +163,8 @@ FILES = ("GUARD", "UP", "FINISH", "PROBE", "SRC", "{}")
 
 
 def arm(env: dict, run: str = "R1", seconds: int = 30) -> subprocess.CompletedProcess:
-    args = commands.arm_args(guard.state_text({"run": run, "by": "ana", "target": "1.1.0-b"}), seconds, FILES, ("img:1",))
+    state = guard.state_text({"run": run, "by": "ana", "target": "1.1.0-b"})
+    args = commands.arm_args(state, seconds, FILES, ("img:1",))
     return sh(commands.lock("~/r", "demo", {"run": run}, guard=args), env)
 
 
