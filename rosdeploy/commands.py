@@ -98,7 +98,8 @@ arm() {
   { printf '%s' "$text"; printf 'dir=%s\nphase=prepare\narmed=%s\ndeadline=%s\nboot=%s\n' "$dir" "$now" "$((now + after))" "$boot"; } \
     > "$g/state.tmp" && mv "$g/state.tmp" "$g/state"
   unclaim
-  [ -f "$g/container" ] || ( start_guard $(cat "$dir/current/images.txt" 2>/dev/null) "$@" </dev/null >/dev/null 2>&1 & )
+  # Detached from this step's output (dash keeps a redirected function call's pipe open)
+  [ -f "$g/container" ] || ( exec </dev/null >/dev/null 2>&1; start_guard $(cat "$dir/current/images.txt" 2>/dev/null) "$@" ) &
 }
 '''
 
