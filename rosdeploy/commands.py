@@ -74,6 +74,19 @@ disarm() {
 # start_guard IMAGE...: the guard's container, from the first image that has chroot; in the
 # background of a step, so it costs that step no time. dockerd starts it again at boot.
 start_guard() {
+  # One start at a time: the first `up` may come while the lock's start still runs; it
+  # waits for that one rather than replacing its container.
+  i=0
+  until mkdir "$g/.starting" 2>/dev/null; do
+    [ $i -lt 100 ] || return 1
+    i=$((i + 1)); sleep 0.1
+  done
+  [ ! -f "$g/container" ] || { rmdir "$g/.starting"; return 0; }
+  started_guard "$@"; code=$?
+  rmdir "$g/.starting"
+  return $code
+}
+started_guard() {
   for img in "$@"; do
     for try in 1 2; do
       if docker run -d --pull never --name "$guard_name" --label "rosdeploy.guard=$project" --restart always \

@@ -158,9 +158,11 @@ run=$(get run "$g/state" 2>/dev/null)
 boot=$(cat /proc/sys/kernel/random/boot_id 2>/dev/null)
 restarted=no
 [ "$(get boot "$g/state")" = "$boot" ] || restarted=yes
-# dockerd started this container again: the robot (or its engine) restarted since it was armed
-[ "$(cat "$g/started" 2>/dev/null)" != "$run" ] || restarted=yes
-printf '%s\n' "$run" > "$g/started"
+# dockerd started this same container again (same run, same container: its hostname):
+# the robot (or its engine) restarted since it was armed
+read -r me < /proc/sys/kernel/hostname 2>/dev/null || me=
+[ "$(cat "$g/started" 2>/dev/null)" != "$run $me" ] || restarted=yes
+printf '%s %s\n' "$run" "$me" > "$g/started"
 say "guard of run $run armed"
 if [ $restarted = yes ]; then
   claim "robot restarted mid-deploy" && act

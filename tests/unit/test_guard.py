@@ -327,3 +327,21 @@ def test_the_status_table_shows_the_word_and_why_for_every_robot() -> None:
     assert lines[0].split() == ["ROBOT", "STATE", "VERSION", "DRIFT", "SERVICES", "LAST", "DEPLOY", "WHY"]
     assert "INTERRUPTED" in lines[1] and lines[1].endswith("guard reverts to 1.0.0-a in 42 s")
     assert "UNREACHABLE" in lines[2] and lines[2].endswith("unreachable: no answer")
+
+
+def test_the_first_up_waits_for_the_lock_s_guard_start_instead_of_starting_a_second(tmp_path: Path) -> None:
+    """A second container would take the first one's `started` mark for a restart."""
+    env = fake_docker(tmp_path)
+    slow = tmp_path / "bin" / "docker"
+    slow.write_text('#!/bin/sh\necho "$*" >> "$DOCKER_LOG"\n[ "$1" != run ] || sleep 1\n')
+    arm(env)                                               # returns at once; its start takes 1 s
+    release = tmp_path / "r/demo/releases/1.1.0-b"
+    release.mkdir(parents=True)
+    (release / "images.txt").write_text("img:1\n")
+    began = time.monotonic()
+    out = sh(commands.up("~/r", "demo", "1.1.0-b", "v2", rearm=commands.rearm_arg("R1", 60)), env)
+    assert out.returncode == 0, out.stderr
+    runs = [c for c in (tmp_path / "docker.log").read_text().splitlines() if c.startswith("run ")]
+    assert len(runs) == 1 and not [c for c in (tmp_path / "docker.log").read_text().splitlines()
+                                   if c.startswith("rm ")]
+    assert (tmp_path / "r/demo/.guard/container").exists() and time.monotonic() - began < 5
