@@ -35,6 +35,87 @@ def script(name: str, body: str, *args: str, stdin: bytes | None = None, timeout
                    label=f"{name} {' '.join(shlex.quote(str(a)) for a in args)}".strip())
 
 
+# The deploy guard's side of a run (see guard.py): arm it at the lock, re-arm it at each
+# step with that step's deadline, disarm it at the run's end. `.claim` is the mutex between
+# the controller and a guard taking over: once the guard holds it (acting), this run can
+# neither re-arm nor activate any more.
+_GUARD = r'''
+g=$dir/.guard
+guard_name=rosdeploy-guard-$project
+claim() {
+  i=0
+  until mkdir "$g/.claim" 2>/dev/null; do
+    [ ! -f "$g/acting" ] && [ $i -lt 20 ] || return 1
+    i=$((i + 1)); sleep 0.1
+  done
+}
+unclaim() { rmdir "$g/.claim" 2>/dev/null; }
+armed_by() { [ -f "$g/state" ] && grep -qxF "run=$1" "$g/state"; }
+took_over() { echo "the deploy guard on the robot took this run over (it acted at its deadline)" >&2; return 6; }
+# rearm RUN PHASE SECONDS: a new deadline for this run's guard
+rearm() {
+  claim || { took_over; return 6; }
+  if armed_by "$1"; then
+    { cat "$g/state"; printf 'phase=%s\ndeadline=%s\n' "$2" "$(( $(date +%s) + $3 ))"; } > "$g/state.tmp" \
+      && mv "$g/state.tmp" "$g/state"
+    unclaim; return 0
+  fi
+  unclaim; took_over
+}
+# disarm RUN [strict]: the guard of this run goes (it removes its own container within a
+# second); strict: fail if it is no longer armed (it acted: the run must not activate)
+disarm() {
+  [ -d "$g" ] || { [ -z "${2:-}" ] || took_over; return; }
+  claim || { took_over; return 6; }
+  if armed_by "$1"; then rm -f "$g/state"; unclaim; return 0; fi
+  unclaim
+  [ -z "${2:-}" ] || took_over
+}
+# start_guard IMAGE...: the guard's container, from the first image that has chroot; in the
+# background of a step, so it costs that step no time. dockerd starts it again at boot.
+start_guard() {
+  # One start at a time: the first `up` may come while the lock's start still runs; it
+  # waits for that one rather than replacing its container.
+  i=0
+  until mkdir "$g/.starting" 2>/dev/null; do
+    [ $i -lt 100 ] || return 1
+    i=$((i + 1)); sleep 0.1
+  done
+  [ ! -f "$g/container" ] || { rmdir "$g/.starting"; return 0; }
+  started_guard "$@"; code=$?
+  rmdir "$g/.starting"
+  return $code
+}
+started_guard() {
+  for img in "$@"; do
+    for try in 1 2; do
+      if docker run -d --pull never --name "$guard_name" --label "rosdeploy.guard=$project" --restart always \
+           --network none --no-healthcheck --user 0:0 -e HOME="$HOME" -v /:/host --entrypoint chroot "$img" \
+           --userspec="$(id -u):$(id -g)" --groups="$(id -G | tr ' ' ,)" \
+           /host /bin/sh "$g/guard.sh" "$g" "$guard_name" >/dev/null 2>>"$g/log"; then
+        printf '%s\n' "$guard_name" > "$g/container"; return 0
+      fi
+      docker rm -f "$guard_name" >/dev/null 2>&1     # one leaving, a stale one, or no chroot in $img
+    done
+  done
+  echo "no image to run the deploy guard from: $*" >> "$g/log"; return 1
+}
+# arm STATE SECONDS FILE*6 IMAGE...: write the guard's files and state, start its container
+arm() {
+  text=$1; after=$2; shift 2
+  mkdir -p "$g" || return 1
+  for f in guard.sh up.sh finish.sh probe.sh ros_probe.py probe.json; do printf '%s\n' "$1" > "$g/$f"; shift; done
+  claim || return 6
+  boot=; read -r boot < /proc/sys/kernel/random/boot_id 2>/dev/null || true
+  now=$(date +%s)
+  { printf '%s' "$text"; printf 'dir=%s\nphase=prepare\narmed=%s\ndeadline=%s\nboot=%s\n' "$dir" "$now" "$((now + after))" "$boot"; } \
+    > "$g/state.tmp" && mv "$g/state.tmp" "$g/state"
+  unclaim
+  # Detached from this step's output (dash keeps a redirected function call's pipe open)
+  [ -f "$g/container" ] || ( exec </dev/null >/dev/null 2>&1; start_guard $(cat "$dir/current/images.txt" 2>/dev/null) "$@" ) &
+}
+'''
+
 # Shared prologue: resolve "~/..." against the SSH user's home (the remote shell
 # cannot expand a quoted "~"), and define the project directory.
 _PROLOGUE = r'''
@@ -88,6 +169,11 @@ section manifest; show "$dir/current/manifest.json"
 section lock; show "$dir/.lock/owner"
 section releases; for r in "$dir"/releases/*; do [ -e "$r" ] && printf '%s\n' "${r##*/}"; done
 section history; tail -n 50 "$dir/history.jsonl" 2>/dev/null || true
+section guard; show "$dir/.guard/state"
+section guard-acting; show "$dir/.guard/acting"
+# The robot's clock, for the guard's deadline: only when one is armed (a fork otherwise saved)
+if [ -e "$dir/.guard/state" ] || [ -e "$dir/.guard/acting" ]; then section clock; date +%s; fi
+section boot; show /proc/sys/kernel/random/boot_id
 if [ "$mode" = switch ]; then
   for r in "$dir"/releases/*; do [ -r "$r/manifest.json" ] && { section "manifest ${r##*/}"; show "$r/manifest.json"; }; done
 else
@@ -154,8 +240,19 @@ take_lock() {
 }
 '''
 
-LOCK_SCRIPT = _PROLOGUE + _LOCK + r'''
-take_lock "$@"
+LOCK_SCRIPT = _PROLOGUE + _LOCK + _GUARD + r'''
+take_lock "$1" "$2" "$3" || exit $?
+shift 3
+[ $# -eq 0 ] && exit 0
+arm "$@"; armed=$?
+[ $armed = 0 ] && exit 0
+rm -rf "$dir/.lock"
+if [ $armed = 6 ]; then   # a guard is ending an interrupted run here: the robot is its until then
+  printf 'held {"by": "the deploy guard (ending an interrupted run)", "run": "guard"}\n'
+  exit 3
+fi
+echo "cannot arm the deploy guard in $dir/.guard: check the deploy root's owner and permissions" >&2
+exit 1
 '''
 
 # A rollback's first round trip: the lock, then the state read under it (what it shows
@@ -168,18 +265,29 @@ mode=switch; shift 3
 exit $locked
 '''
 
-UNLOCK_SCRIPT = _PROLOGUE + r'''
+UNLOCK_SCRIPT = _PROLOGUE + _GUARD + r'''
 token=$1
+# The run ends: its guard goes with it, unless it took over (then the lock is its to release).
+disarm "$token" || exit 0
 # Only remove a lock we hold: another run may have broken ours and taken it.
 if grep -qF "$token" "$dir/.lock/owner" 2>/dev/null; then rm -rf "$dir/.lock"; fi
 '''
 
 
-def lock(root: str, project: str, owner: dict, break_stale: bool = False, dead_run: str = "") -> Command:
+def lock(root: str, project: str, owner: dict, break_stale: bool = False, dead_run: str = "",
+         guard: tuple[str, ...] = ()) -> Command:
     """mkdir is atomic on every filesystem: the lock is a directory holding its owner.
-    `dead_run`: the run id of a holder proven dead; its lock (only) is removed first."""
+    `dead_run`: the run id of a holder proven dead; its lock (only) is removed first.
+    `guard`: arm the deploy guard under the lock (see arm_args)."""
     return script("lock", LOCK_SCRIPT, root, project, json.dumps(owner, sort_keys=True),
-                  "yes" if break_stale else "no", dead_run)
+                  "yes" if break_stale else "no", dead_run, *guard)
+
+
+def arm_args(state: str, seconds: float, files: tuple[str, ...], images: tuple[str, ...]) -> tuple[str, ...]:
+    """The lock's guard arguments: its state text, seconds to its first deadline, its six
+    files (guard.sh, up.sh, finish.sh, probe.sh, ros_probe.py, probe.json), and the images
+    its container may run from (the current release's are tried first)."""
+    return (state, str(int(seconds)), *files, *images)
 
 
 def locked_state(root: str, project: str, owner: dict, break_stale: bool = False, dead_run: str = "") -> Command:
@@ -193,8 +301,10 @@ def unlock(root: str, project: str, token: str) -> Command:
     return script("unlock", UNLOCK_SCRIPT, root, project, token)
 
 
-UPLOAD_SCRIPT = _PROLOGUE + r'''
-release=$1; shift
+UPLOAD_SCRIPT = _PROLOGUE + _GUARD + r'''
+release=$1; arm=$2; shift 2
+# The pull is done: the guard's deadline now covers the steps up to the start.
+[ -z "$arm" ] || rearm "${arm%% *}" prepare "${arm#* }" || exit 6
 tmp=$dir/releases/.tmp-$release-$$
 rm -rf "$tmp"; mkdir -p "$tmp"
 tar -x -f - -C "$tmp" --no-same-owner || { rm -rf "$tmp"; echo "upload incomplete: tar failed" >&2; exit 5; }
@@ -212,9 +322,26 @@ done
 '''
 
 
-def upload(root: str, project: str, release: str, tarball: bytes, services: tuple[str, ...] = ()) -> Command:
-    """Files go to a temporary dir and are renamed into place: never half-written."""
-    return script("upload", UPLOAD_SCRIPT, root, project, release, *services, stdin=tarball)
+def upload(root: str, project: str, release: str, tarball: bytes, services: tuple[str, ...] = (),
+           rearm: str = "") -> Command:
+    """Files go to a temporary dir and are renamed into place: never half-written.
+    `rearm`: "RUN SECONDS", the guard's next deadline (see rearm)."""
+    return script("upload", UPLOAD_SCRIPT, root, project, release, rearm, *services, stdin=tarball)
+
+
+REARM_SCRIPT = _PROLOGUE + _GUARD + r'''
+# A step that waits on the robot (the readiness gate) keeps the guard's deadline ahead of it.
+rearm "${1%% *}" prepare "${1#* }" || exit 6
+'''
+
+
+def rearm(root: str, project: str, arm: str) -> Command:
+    """Push this run's guard deadline out ("RUN SECONDS"); exit 6 when the guard already acted."""
+    return script("rearm", REARM_SCRIPT, root, project, arm)
+
+
+def rearm_arg(run: str, seconds: float) -> str:
+    return f"{run} {int(seconds)}"
 
 
 PULL_SCRIPT = r'''
@@ -252,10 +379,17 @@ _INSPECT = r'''
 fmt='{"id":{{json .Id}},"name":{{json .Name}},"service":{{json (index .Config.Labels "com.docker.compose.service")}},"image":{{json .Config.Image}},"status":{{json .State.Status}},"health":{{if .State.Health}}{{json .State.Health.Status}}{{else}}null{{end}},"restarts":{{.RestartCount}},"started":{{json .State.StartedAt}},"workdir":{{json (index .Config.Labels "com.docker.compose.project.working_dir")}},"test":{{if .Config.Healthcheck}}{{json .Config.Healthcheck.Test}},"test_timeout":{{json .Config.Healthcheck.Timeout}}{{else}}null{{end}}}'
 '''
 
-UP_SCRIPT = _PROLOGUE + _COMPOSE + _INSPECT + r'''
-release=$1; flavor=$2; mode=$3; shift 3
+UP_SCRIPT = _PROLOGUE + _COMPOSE + _INSPECT + _GUARD + r'''
+release=$1; flavor=$2; mode=$3; arm=$4; shift 4
 cd "$dir/releases/$release" || { echo "release $release is not on this robot" >&2; exit 4; }
 ids=
+# Before the first container of the release starts: the guard's deadline becomes the
+# gate's, and its container starts now if the lock could not start it (no image yet).
+guard_pid=
+if [ -n "$arm" ]; then
+  rearm "${arm%% *}" start "${arm#* }" || exit 6
+  if [ ! -f "$g/container" ]; then start_guard $(cat images.txt) </dev/null >/dev/null 2>&1 & guard_pid=$!; fi
+fi
 start() {
   case $mode in
     all) compose -p "$project" -f compose.yml up -d --remove-orphans 2>&1 ;;
@@ -282,7 +416,8 @@ start() {
     *) echo "unknown start mode $mode" >&2; return 2 ;;
   esac
 }
-start "$@" || exit $?
+start "$@" || { code=$?; [ -z "$guard_pid" ] || wait "$guard_pid"; exit $code; }
+[ -z "$guard_pid" ] || wait "$guard_pid"
 # The project's containers as the gate's first poll would read them: that poll is one
 # round trip (and, under load, a few tenths of a second) before the health watches begin.
 printf '\n@@started\n'
@@ -293,12 +428,13 @@ exit 0
 
 
 def up(root: str, project: str, release: str, flavor: str, services: tuple[str, ...] = (),
-       together: bool = False, timeout: float | None = None) -> Command:
+       together: bool = False, timeout: float | None = None, rearm: str = "") -> Command:
     """Switch the compose project to a release: the same project name, so containers are
     replaced. All services the compose way; or only `services`, in that order, without
-    waiting on their dependencies; or `together`: every service started at once."""
+    waiting on their dependencies; or `together`: every service started at once.
+    `rearm`: "RUN SECONDS", the guard's deadline from this start on (exit 6: it took over)."""
     mode = "together" if together else "each" if services else "all"
-    return script("up", UP_SCRIPT, root, project, release, flavor, mode, *services, timeout=timeout)
+    return script("up", UP_SCRIPT, root, project, release, flavor, mode, rearm, *services, timeout=timeout)
 
 
 def started_containers(up_output: str) -> tuple[dict, ...] | None:
@@ -409,23 +545,28 @@ def logs(container: str, lines: int = 20) -> Command:
     return Command(("docker", "logs", "--tail", str(lines), container), label=f"logs {container}")
 
 
+ROS_PROBE_SCRIPT = r'''
+c=$1; src=$2; arg=$3
+exec docker exec "$c" sh -c 'for f in /opt/ros/*/setup.sh /ros_entrypoint_env.sh; do [ -f "$f" ] && . "$f" >/dev/null 2>&1; done; exec python3 -c "$0" "$1"' "$src" "$arg"
+'''
+
+
 def ros_probe(container: str, probe_source: str, spec: dict, timeout: float) -> Command:
     """Run rosdeploy's rclpy probe inside a running container of the release.
 
     ROS images need their setup sourced; images with rclpy on the default path
     (pip-installed ROS) work as they are.
     """
-    body = r'''
-c=$1; src=$2; arg=$3
-exec docker exec "$c" sh -c 'for f in /opt/ros/*/setup.sh /ros_entrypoint_env.sh; do [ -f "$f" ] && . "$f" >/dev/null 2>&1; done; exec python3 -c "$0" "$1"' "$src" "$arg"
-'''
-    return script("ros-probe", body, container, probe_source, json.dumps(spec, sort_keys=True),
+    return script("ros-probe", ROS_PROBE_SCRIPT, container, probe_source, json.dumps(spec, sort_keys=True),
                   timeout=timeout)
 
 
-FINISH_SCRIPT = _PROLOGUE + r'''
-release=$1; record=$2; keep=$3
+FINISH_SCRIPT = _PROLOGUE + _GUARD + r'''
+release=$1; record=$2; keep=$3; run=${4:-}
 cd "$dir" || exit 4
+# The same step that switches `current` disarms the run's guard; if the guard took over
+# already, this run must not switch.
+[ -z "$run" ] || disarm "$run" strict || exit 6
 ln -sfn "releases/$release" current.tmp && mv -T current.tmp current
 # mtime = activation order, so pruning keeps the releases that last ran, not the last uploaded
 touch "releases/$release"
@@ -445,20 +586,23 @@ exit 0
 '''
 
 
-def finish(root: str, project: str, release: str, record: dict, keep: int) -> Command:
-    """Point `current` at the release (atomic rename), append history, prune old releases."""
+def finish(root: str, project: str, release: str, record: dict, keep: int, guard_run: str = "") -> Command:
+    """Point `current` at the release (atomic rename), append history, prune old releases.
+    `guard_run`: disarm this run's guard first (exit 6 if it took over)."""
     return script("activate", FINISH_SCRIPT, root, project, release,
-                  json.dumps(record, sort_keys=True), str(keep))
+                  json.dumps(record, sort_keys=True), str(keep), guard_run)
 
 
-RECORD_SCRIPT = _PROLOGUE + r'''
-mkdir -p "$dir" && printf '%s\n' "$1" >> "$dir/history.jsonl"
+RECORD_SCRIPT = _PROLOGUE + _GUARD + r'''
+mkdir -p "$dir" && printf '%s\n' "$1" >> "$dir/history.jsonl" || exit $?
+[ -z "${2:-}" ] || rearm "${2%% *}" start "${2#* }"
 '''
 
 
-def record(root: str, project: str, entry: dict) -> Command:
-    """Append to history without switching anything (failed deploys, rollbacks that failed)."""
-    return script("history", RECORD_SCRIPT, root, project, json.dumps(entry, sort_keys=True))
+def record(root: str, project: str, entry: dict, rearm: str = "") -> Command:
+    """Append to history without switching anything (failed deploys, rollbacks that failed).
+    `rearm`: "RUN SECONDS", a new deadline for the guard (the run goes on: its own rollback)."""
+    return script("history", RECORD_SCRIPT, root, project, json.dumps(entry, sort_keys=True), rearm)
 
 
 

@@ -1,8 +1,13 @@
 """One robot: apply a release or roll back, leaving it either on the new release,
 healthy, or exactly as it was.
 
-    state (1 round trip) -> [up to date: done] -> preflight -> lock -> pull (old keeps running)
-    -> upload (temp dir + rename) -> up -> health gate -> activate | roll back -> unlock
+    state (1 round trip) -> [up to date: done] -> preflight -> lock (+ arm the guard) -> pull
+    (old keeps running) -> upload (temp dir + rename) -> up (guard: the gate's deadline)
+    -> health gate -> activate (disarms) | roll back -> unlock (disarms)
+
+The guard (guard.py) ends the deploy on the robot by itself if this process goes away
+(kill, sleep, lost link) or the robot restarts before activation. Each step that re-arms
+it does so in its own round trip: arming costs no extra one.
 
 Every step is timed and kept in the HostResult; nothing here prints (progress
 goes to a callback the output layer renders).
@@ -20,13 +25,13 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import TYPE_CHECKING, Callable, Iterator
 
-from rosdeploy import __version__, commands, hold
-from rosdeploy.errors import CommandFailed, ConnectError, RemoteError
+from rosdeploy import __version__, commands, guard, hold
+from rosdeploy.errors import CommandFailed, ConnectError, GuardTookOver, RemoteError
+from rosdeploy.health import (PROBE_SOURCE, Poller, Verdict, diagnose, expected_services, probe_service,
+                              settled, start_levels, started_containers, topics_spec, wait_healthy)
 from rosdeploy.images import pull as image_pull
-from rosdeploy.health import (Poller, Verdict, diagnose, expected_services, settled, start_levels,
-                              started_containers, wait_healthy)
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
-from rosdeploy.owner import Controller, dead_run, record, this_controller
+from rosdeploy.owner import Controller, dead_run, describe, record, this_controller
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
 from rosdeploy.robot import (RobotState, parse_state, passed_gate, release_services,
@@ -37,6 +42,11 @@ if TYPE_CHECKING:
     from rosdeploy.images.supply import Supply
 
 Progress = Callable[[str, str], None]   # (robot, what is happening)
+
+# Test hook (documented in docs/guard.md): seconds the controller pauses after the gate
+# passed and before it activates, so a test can kill it exactly there.
+PAUSE_BEFORE_ACTIVATE = "ROSDEPLOY_TEST_PAUSE_BEFORE_ACTIVATE"
+TOOK_OVER = 6     # exit code of a robot script whose run the guard took over
 
 
 @dataclass(frozen=True)
@@ -72,15 +82,22 @@ class RobotRun:
         self.steps: list[Step] = []
         self.started = time.monotonic()
         self.locked = False
+        self.doing = ""                       # the step under way, for "connection lost during <step>"
+        self.lost = False                     # the connection dropped: send nothing more
+        self.armed: guard.Guard | None = None  # this run's guard, as armed
+        self.guard_at: float | None = None    # when it acts (monotonic), as last (re)armed
 
     # ------------------------------------------------------------ plumbing
     @contextmanager
     def step(self, name: str) -> Iterator[None]:
         self.ctx.progress(self.host.name, name)
         began = time.monotonic()
+        self.doing = name
         try:
             yield
         except Exception as exc:
+            if isinstance(exc, ConnectError):
+                self.lost = True
             self.steps.append(Step(name, time.monotonic() - began, False, str(exc)))
             raise
         self.steps.append(Step(name, time.monotonic() - began))
@@ -93,12 +110,59 @@ class RobotRun:
     def open(self) -> None:
         with self.step("connect"):
             self.t = self.ctx.connect(self.host, self.ctx.ssh)
+            if hasattr(self.t, "reconnect"):
+                self.t.reconnect = False    # lost mid-deploy: the robot is its guard's, not a new connection's
 
     def close(self) -> None:
         if self.t is not None:
-            if self.locked:
+            # A lost connection leaves the robot to its guard: reconnecting to unlock (which
+            # disarms) would take away the only thing that ends the deploy there.
+            if self.locked and not (self.lost and self.armed):
                 self.unlock()
             self.t.close()
+
+    # ------------------------------------------------------------ the guard
+    @property
+    def guarded(self) -> bool:
+        return self.spec.rollback.guard != "off"
+
+    def guard_arm(self, state: RobotState, release: RenderedRelease) -> tuple[str, ...]:
+        """The lock's arguments that arm the guard for this deploy (nothing when it is off)."""
+        if not self.guarded:
+            return ()
+        fields = {"run": self.ctx.run_id, "by": self.ctx.operator, "mode": self.spec.rollback.guard,
+                  "project": self.spec.project, "target": release.release_id, "previous": state.current or "",
+                  "flavor": state.flavor or "v2", "services": " ".join(expected_services(self.spec)),
+                  "gate": int(self.spec.health.timeout), "stable": int(round(self.spec.health.stable)),
+                  "keep": self.spec.rollback.keep_releases, "probe": probe_service(self.spec) or "",
+                  "margin": int(self.spec.rollback.guard_margin)}
+        files = (guard.GUARD_SCRIPT, commands.UP_SCRIPT, commands.FINISH_SCRIPT, commands.ROS_PROBE_SCRIPT,
+                 PROBE_SOURCE, guard.probe_spec(topics_spec(self.spec), self.spec.health.topic_window))
+        self.armed = guard.Guard(run=self.ctx.run_id, by=self.ctx.operator, mode=self.spec.rollback.guard,
+                                 phase="prepare", target=release.release_id, previous=state.current,
+                                 deadline=None)
+        return commands.arm_args(guard.state_text(fields), self._deadline("prepare"), files, release.images)
+
+    def _deadline(self, phase: str) -> float:
+        """Seconds from now until the guard acts: a step's own time limit plus the margin."""
+        limit = self.spec.command_timeout if phase == "prepare" else self.spec.health.timeout
+        seconds = limit + self.spec.rollback.guard_margin
+        self.guard_at = time.monotonic() + seconds
+        if self.armed is not None:
+            self.armed = replace(self.armed, phase=phase)
+        return seconds
+
+    def rearm(self, phase: str) -> str:
+        """The argument that gives the guard its next deadline ("" when none is armed)."""
+        return commands.rearm_arg(self.ctx.run_id, self._deadline(phase)) if self.armed else ""
+
+    def guard_note(self) -> str:
+        """What the guard on this robot will do, and when: for a run that lost the robot."""
+        if not self.armed or self.guard_at is None:
+            return ""
+        left = max(0, round(self.guard_at - time.monotonic()))
+        when = datetime.fromtimestamp(time.time() + left, timezone.utc).strftime("%H:%M:%S UTC")
+        return f"; the guard on the robot {self.armed.will} in ~{left} s (at {when})"
 
     @property
     def root(self) -> str:
@@ -124,10 +188,13 @@ class RobotRun:
                                             self.compose_pref, self.wants_gpu(), full=full))
         return parse_state(out.stdout)
 
-    def lock(self) -> str | None:
-        """Take the robot's lock; None when taken, else who holds it."""
-        return self._lock(lambda owner, dead: commands.lock(self.root, self.spec.project, owner,
-                                                             self.ctx.break_lock, dead), "lock")[0]
+    def lock(self, arm: tuple[str, ...] = ()) -> str | None:
+        """Take the robot's lock (and arm the guard under it); None when taken, else who holds it."""
+        holder = self._lock(lambda owner, dead: commands.lock(self.root, self.spec.project, owner,
+                                                               self.ctx.break_lock, dead, arm), "lock")[0]
+        if holder is not None:
+            self.armed = None
+        return holder
 
     def lock_and_read(self) -> tuple[str | None, RobotState]:
         """The lock and, read under it, the state a rollback needs, in one round trip."""
@@ -192,6 +259,7 @@ class RobotRun:
         release starts the compose way (its own depends_on), not by the fleet file's levels.
         """
         foreign = services is not None and set(services) != set(expected_services(self.spec))
+        rearm = "" if together else self.rearm("start")    # a new release: the guard takes the gate's deadline
         levels = ((),) if together or foreign else start_levels(self.spec)
         began = time.monotonic()
         deadline = began + self.spec.health.timeout
@@ -205,7 +273,8 @@ class RobotRun:
                         return ready
                 names = level if len(levels) > 1 else ()   # one level: compose's own `up`
                 out = self.t.run(commands.up(self.root, self.spec.project, release, flavor, names,
-                                             together=together, timeout=self.spec.command_timeout))
+                                             together=together, timeout=self.spec.command_timeout,
+                                             rearm=rearm if i == 0 else ""))
                 if not out.ok:
                     lines = (out.stdout + out.stderr).strip().splitlines()
                     return diagnose(self.t, self.spec, "compose up failed: " + (lines[-1] if lines else "no output"))
@@ -214,16 +283,30 @@ class RobotRun:
             return wait_healthy(self.t, self.spec, since=began, deadline=deadline, checks_only=together,
                                 poller=poller, services=services)
 
-    def history(self, entry: dict) -> None:
-        self.t.run(commands.record(self.root, self.spec.project, self.entry(entry)))
+    def history(self, entry: dict, rearm: bool = False) -> None:
+        """`rearm`: this run goes on with its own rollback; the guard waits for that too."""
+        self.t.run(commands.record(self.root, self.spec.project, self.entry(entry),
+                                   self.rearm("start") if rearm else ""))
 
     def entry(self, fields: dict) -> dict:
         return {"time": now(), "by": self.ctx.operator, "run": self.ctx.run_id, **fields}
 
     def activate(self, release: str, fields: dict) -> None:
+        """Switch `current`; the same round trip disarms this run's guard."""
+        pause = float(os.environ.get(PAUSE_BEFORE_ACTIVATE) or 0)
+        if pause > 0:
+            self.ctx.progress(self.host.name, f"pausing {pause:g}s before activate ({PAUSE_BEFORE_ACTIVATE})")
+            time.sleep(pause)
         with self.step("activate"):
-            self.t.check(commands.finish(self.root, self.spec.project, release, self.entry(fields),
-                                         self.spec.rollback.keep_releases), "activate")
+            out = self.t.run(commands.finish(self.root, self.spec.project, release, self.entry(fields),
+                                             self.spec.rollback.keep_releases,
+                                             self.ctx.run_id if self.armed else ""))
+            if out.exited == TOOK_OVER:
+                self.locked = False        # the guard releases it
+                raise GuardTookOver(self.host.name, f"not activated: {out.stderr.strip()}")
+            if not out.ok:
+                raise CommandFailed(self.host.name, out, "activate")
+            self.armed = None
 
     def logs_of(self, verdict: Verdict) -> dict[str, str]:
         """Last log lines of the failing service (or of every service not running right)."""
@@ -288,6 +371,10 @@ def apply_host(ctx: RunContext, host: Host, release: RenderedRelease) -> HostRes
         run.open()
         return _apply(run, release)
     except ConnectError as exc:
+        run.lost = True
+        if run.locked:    # it got as far as the lock: say where it was lost, and what happens now
+            return run.result(UNREACHABLE, new_release=release.release_id,
+                              reason=f"connection lost during {run.doing}{run.guard_note()} ({exc.detail})")
         return run.result(UNREACHABLE, new_release=release.release_id, reason=str(exc))
     except RemoteError as exc:
         return run.result(FAILED, new_release=release.release_id, reason=str(exc))
@@ -309,9 +396,9 @@ def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
     problems = preflight(state, run, run.spec.min_free_disk_mb)
     if problems:
         return run.result(FAILED, running_release=old, reason="preflight: " + "; ".join(problems), **base)
-    holder = run.lock()
+    holder = run.lock(run.guard_arm(state, release))
     if holder is not None:
-        return run.result(LOCKED, running_release=old, reason=f"locked by another run: {holder} "
+        return run.result(LOCKED, running_release=old, reason=f"locked by {describe(holder)} "
                           "(wait, or clear a stale lock with --break-lock)", **base)
     return _switch(run, release, state, base)
 
@@ -335,7 +422,7 @@ def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: di
     with run.step("upload"):
         services = tuple(s.name for s in run.spec.services)
         run.t.check(commands.upload(run.root, run.spec.project, new, _tarball(run, release, pulled.stdout),
-                                    services), "upload")
+                                    services, run.rearm("prepare")), "upload")
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before switching", **base)
     flavor = state.flavor or "v2"
@@ -354,7 +441,7 @@ def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict
     logs = run.logs_of(verdict) if verdict.containers else {}
     why = f"health gate failed: {verdict.reason}"
     run.history({"event": "deploy", "release": new, "version": release.version, "from": old,
-                 "result": "failed", "reason": verdict.reason})
+                 "result": "failed", "reason": verdict.reason}, rearm=True)
     failed = {"failed_service": verdict.service, "logs": logs, **base}
     if not run.spec.rollback.auto:
         return run.result(FAILED, running_release=new, reason=why + " (rollback.auto is off: left running)", **failed)
@@ -438,7 +525,7 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     target = rollback_target(state, to_version, to_release)
     base = {"old_release": state.current, "new_release": target, "running_release": state.current}
     if holder is not None:
-        return run.result(LOCKED, reason=f"locked by another run: {holder} (use --break-lock if it is stale)",
+        return run.result(LOCKED, reason=f"locked by {describe(holder)} (use --break-lock if it is stale)",
                           **base)
     if target is None:
         kept = ", ".join(state.releases) or "none"

@@ -98,6 +98,10 @@ class CommandFailed(RemoteError):
         super().__init__(host, f"{what or 'command'} failed (exit {code}): {tail}")
 
 
+class GuardTookOver(RemoteError):
+    """The robot's deploy guard acted (its deadline passed) before this run could activate."""
+
+
 class LockHeld(RemoteError):
     pass
 

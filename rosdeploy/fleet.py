@@ -578,7 +578,8 @@ SECTIONS: dict[str, Mapping[str, Convert]] = {
     "rollout": {"waves": _listof(_wave, "waves"), "max_fail": _max_fail, "forks": _integer(1),
                 "order_by": _order_by, "pause": _duration,
                 "retry": _duration, "retry_max": _duration, "count_busy": _boolean},
-    "rollback": {"auto": _boolean, "fleet": _boolean, "keep_releases": _integer(2)},
+    "rollback": {"auto": _boolean, "fleet": _boolean, "keep_releases": _integer(2),
+                 "guard": _enum("revert", "finish", "off"), "guard_margin": _duration},
     "images": {"via": _enum("registry", "ssh"), "max_rate": _rate, "total_rate": _rate,
                "controller_registry": _controller_registry},
 }

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any
 
-from rosdeploy import ready, window
+from rosdeploy import commands, ready, window
 from rosdeploy.errors import RemoteError
 from rosdeploy.health import PROBE_SOURCE, probe_service
 from rosdeploy.results import BUSY, SKIPPED, WAITING_WINDOW
@@ -35,7 +35,15 @@ def before_switch(run: Any, state: Any) -> Held | None:
         return None
     running = {c.service: c.name for c in state.containers if c.status == "running"}
     probe_in = running.get(probe_service(run.spec) or "")
-    verdict = ready.wait_ready(lambda: ready.check(run.t.run, policy, running, probe_in, PROBE_SOURCE), policy,
+
+    def check() -> Any:
+        # A deferral may outlast the guard's prepare deadline: each try pushes it out first,
+        # so the guard never acts (and drops the lock) under a run that is only waiting.
+        if run.armed:
+            run.t.check(commands.rearm(run.root, run.spec.project, run.rearm("prepare")), "rearm")
+        return ready.check(run.t.run, policy, running, probe_in, PROBE_SOURCE)
+
+    verdict = ready.wait_ready(check, policy,
                                run.ctx.cancel.is_set, lambda msg: run.ctx.progress(run.host.name, msg), run.step)
     if verdict is None:
         return Held(SKIPPED, "interrupted while deferred by the readiness gate; nothing restarted")

@@ -125,6 +125,8 @@ class RollbackPolicy:
     auto: bool = True           # roll a robot back when its health gate fails
     fleet: bool = True          # when a rollout stops, roll back robots of earlier waves too
     keep_releases: int = 3
+    guard: str = "revert"       # the robot's own end of a deploy its controller lost: revert | finish | off
+    guard_margin: float = 30.0  # seconds past health.timeout before the guard acts
 
 
 @dataclass(frozen=True)

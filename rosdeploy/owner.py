@@ -75,3 +75,31 @@ def dead_run(holder: str, here: Controller, alive: Callable[[int], bool] | None 
     if (alive or pid_alive)(pid):
         return None
     return run, f"its process {pid} on this machine is gone"
+
+
+def holder_alive(owner: Mapping | None, here: Controller, alive: Callable[[int], bool] | None = None) -> bool | None:
+    """Is the run holding a lock still running? True/False when its record says it ran on this
+    system (same boot, same pid namespace); None when this system cannot tell."""
+    if not isinstance(owner, Mapping):
+        return None
+    pid = owner.get("pid")
+    if type(pid) is not int or pid <= 0 or not here.boot or not here.pid_namespace:
+        return None
+    if owner.get("boot") != here.boot or owner.get("pid_namespace") != here.pid_namespace:
+        return None
+    return (alive or pid_alive)(pid)
+
+
+def describe(holder: str | Mapping | None) -> str:
+    """A lock's owner for people: `root@host (run …, pid …, since …)`; the raw text when it
+    is not an owner record."""
+    owner = holder
+    if isinstance(holder, str):
+        try:
+            owner = json.loads(holder)
+        except ValueError:
+            return holder.strip() or "an unknown run"
+    if not isinstance(owner, Mapping):
+        return str(holder)
+    details = [f"{k} {owner[k]}" for k in ("run", "pid", "since") if owner.get(k) not in (None, "")]
+    return f"{owner.get('by') or 'an unknown user'}" + (f" ({', '.join(details)})" if details else "")

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping
 
 from rosdeploy.commands import parse_containers, parse_sections
+from rosdeploy.guard import Guard, parse_guard
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,18 @@ class RobotState:
     runtimes: Mapping[str, Any] | None   # docker runtimes when asked (gpu robots)
     missing_devices: tuple[str, ...]
     kept_manifests: Mapping[str, str] = field(default_factory=dict)   # release -> manifest text (switch state)
+    guard: Guard | None = None           # a deploy guard armed (or acting) on the robot
+    clock: int | None = None             # the robot's clock (s since the epoch), for the guard's deadline
+    boot: str = ""                       # the robot's boot id
+
+    @property
+    def running_release(self) -> str | None:
+        """The release the project's running containers belong to (their compose labels);
+        "mixed" when they belong to more than one, None when none runs."""
+        releases = {c.release for c in self.containers if c.status in ("running", "restarting")}
+        if not releases:
+            return None
+        return releases.pop() if len(releases) == 1 else "mixed"
 
     @property
     def flavor(self) -> str | None:
@@ -112,7 +125,10 @@ def parse_state(stdout: str) -> RobotState:
         runtimes=_json(s.get("gpu")),
         missing_devices=tuple(line.split(" ", 1)[1] for line in s.get("devices", "").splitlines()
                               if line.startswith("missing ")),
-        kept_manifests={name.split(" ", 1)[1]: text for name, text in s.items() if name.startswith("manifest ")})
+        kept_manifests={name.split(" ", 1)[1]: text for name, text in s.items() if name.startswith("manifest ")},
+        guard=parse_guard(s.get("guard-acting"), acting=True) or parse_guard(s.get("guard")),
+        clock=int(s["clock"]) if s.get("clock", "").strip().isdigit() else None,
+        boot=s.get("boot", "").strip())
 
 
 def _json(text: str | None) -> Any:

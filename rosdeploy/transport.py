@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import functools
 import getpass
+import logging
 import os
 import random
 import select
 import socket
 import time
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import Callable, Protocol
 
 import paramiko
 from fabric import Config, Connection
@@ -27,6 +28,16 @@ from fabric import Config, Connection
 from rosdeploy.commands import Command
 from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError
 from rosdeploy.model import Host
+
+
+# paramiko reports a dropped connection from its own threads through its loggers (with
+# tracebacks); with no handler, Python's last-resort handler would print them into the
+# progress output. The failed command reports the loss itself (ConnectError).
+logging.getLogger("paramiko").addHandler(logging.NullHandler())
+
+KEEPALIVE = 2.0       # s: an SSH keepalive after this long without traffic...
+LINK_TIMEOUT = 6.0    # s: ...and the link counts as lost when nothing sent is acknowledged for this long
+LINK_QUIET = 4.0      # s without a byte on a command's channel before asking whether the robot answers
 
 
 @dataclass(frozen=True)
@@ -95,6 +106,9 @@ class SSHTransport:
         self.host = host
         self.options = options
         self._conn = self._connection(config or fabric_config(options))
+        # False: a dropped connection is not opened again by the next command (a deploy
+        # that lost its robot mid-step must not carry on over a new one)
+        self.reconnect = True
 
     def _connection(self, config: Config) -> Connection:
         kwargs: dict = {}
@@ -123,6 +137,7 @@ class SSHTransport:
         try:
             self._conn.open()
             _no_delay(self._conn.client.get_transport())
+            _keepalive(self._conn.client.get_transport())
         except paramiko.BadHostKeyException as exc:
             raise HostKeyError(self.host.name, self._changed_key_message(exc)) from exc
         except RevokedHostKey as exc:
@@ -167,6 +182,8 @@ class SSHTransport:
     def run(self, command: Command) -> Result:
         """Run one command; a non-zero exit is a Result, not an exception (see `check`)."""
         if not self._conn.is_connected:
+            if not self.reconnect and self._conn.transport is not None:
+                raise ConnectError(self.host.name, f"connection lost before `{command.display()}`")
             self.open()
         started = time.monotonic()
         timeout = command.timeout or self.options.command_timeout
@@ -179,8 +196,10 @@ class SSHTransport:
             if command.stdin is not None:
                 chan.sendall(command.stdin)
                 chan.shutdown_write()
-            out, err = _drain(chan, started + timeout)
+            out, err = _drain(chan, started + timeout, lambda: _answers(self._conn.transport))
             code = chan.recv_exit_status()
+            if code == -1 and not self._conn.transport.is_active():
+                raise EOFError("the SSH connection dropped")
         except TimeoutError as exc:
             raise ConnectError(self.host.name, f"`{command.display()}` timed out after {timeout:g}s") from exc
         except (paramiko.SSHException, OSError, EOFError) as exc:
@@ -203,6 +222,18 @@ def _no_delay(transport: paramiko.Transport | None) -> None:
     sock = getattr(transport, "sock", None)
     if isinstance(sock, socket.socket):
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+
+def _keepalive(transport: paramiko.Transport | None) -> None:
+    """Notice a silently dropped link (Wi-Fi gone, robot powered off) within seconds, not at
+    the command's timeout: keepalives keep data in flight, and the kernel gives up on the
+    connection when none of it is acknowledged for LINK_TIMEOUT."""
+    if transport is None:
+        return
+    transport.set_keepalive(int(KEEPALIVE))
+    sock = getattr(transport, "sock", None)
+    if isinstance(sock, socket.socket) and hasattr(socket, "TCP_USER_TIMEOUT"):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_USER_TIMEOUT, int(LINK_TIMEOUT * 1000))
 
 
 class RevokedHostKey(paramiko.SSHException):
@@ -309,11 +340,33 @@ def _parsed_host_keys(path: str) -> KnownHosts:
         return KnownHosts(paramiko.HostKeys(), frozenset(), ())
 
 
-def _drain(chan: paramiko.Channel, deadline: float) -> tuple[str, str]:
-    """Read stdout and stderr together until the remote side closes or the deadline passes."""
+def _answers(transport: paramiko.Transport) -> bool:
+    """Does the robot still answer on this connection? A channel open is answered by sshd
+    itself (no process starts on the robot). A TCP-level timeout cannot tell when a proxy
+    (ProxyJump, docker-proxy, a NAT box) acknowledges for the robot."""
+    try:
+        transport.open_session(timeout=LINK_TIMEOUT).close()
+    except paramiko.ChannelException:
+        return True                  # refused (sshd's MaxSessions): an answer all the same
+    except (paramiko.SSHException, OSError, EOFError):
+        return False
+    return True
+
+
+def _drain(chan: paramiko.Channel, deadline: float, answers: Callable[[], bool] | None = None) -> tuple[str, str]:
+    """Read stdout and stderr together until the remote side closes or the deadline passes.
+    `answers`: asked after LINK_QUIET s without a byte; False ends the read as a lost link."""
     out: list[bytes] = []
     err: list[bytes] = []
+    heard = time.monotonic()
     while True:
+        if chan.recv_ready() or chan.recv_stderr_ready():
+            heard = time.monotonic()
+        elif answers is not None and time.monotonic() - heard >= LINK_QUIET:
+            if not answers():
+                chan.close()
+                raise EOFError(f"the robot stopped answering (no reply within {LINK_TIMEOUT:g}s)")
+            heard = time.monotonic()
         while chan.recv_ready():
             out.append(chan.recv(65536))
         while chan.recv_stderr_ready():

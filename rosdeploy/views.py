@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Mapping
 
 from rosdeploy import commands, hold
@@ -11,6 +11,8 @@ from rosdeploy.errors import RemoteError
 from rosdeploy.health import expected_services, settled
 from rosdeploy.model import Host, RenderedRelease
 from rosdeploy.commands import parse_sections
+from rosdeploy.owner import describe, holder_alive
+from rosdeploy.results import version_of
 from rosdeploy.robot import RobotState, unhealthy_services
 
 
@@ -32,6 +34,13 @@ class RobotStatus:
     app_lock: tuple[Mapping[str, Any], ...] = ()     # held lock files of the readiness gate (ready.py)
     pending: Mapping[str, Any] | None = None         # the controller's pending entry (pending.py)
     images: Mapping[str, Any] = field(default_factory=dict)   # ref -> the digest deployed (manifest `pins`)
+    lock_alive: bool | None = None        # the lock's run still runs (None: cannot tell from here)
+    running_release: str | None = None    # what the running containers belong to (their labels)
+    active: bool | None = None            # running_release is the activated one (`current`)
+    guard: Mapping[str, Any] | None = None   # an armed or acting deploy guard
+    guard_in: int | None = None           # seconds until it acts
+    state: str = ""                       # one word: healthy, UNHEALTHY, INTERRUPTED, DEPLOYING...
+    reason: str = ""                      # why, when the word is not enough
 
 
 def quick_state(ctx: RunContext, host: Host, judge_health: bool = False) -> RobotState | RemoteError:
@@ -56,15 +65,56 @@ def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) ->
         return RobotStatus(host.name, False, error=str(state))
     manifest = state.manifest or {}
     problems = unhealthy_services(state.containers, expected_services(ctx.spec)) if state.current else {}
+    alive = holder_alive(state.lock, ctx.controller)
+    word, reason = status_word(state, problems, alive)
+    guard = state.guard
     return RobotStatus(
         host.name, True, release=state.current, version=manifest.get("version"),
         digest=manifest.get("digest"),
         drift=None if release is None or not state.current else manifest.get("digest") != release.digest,
-        healthy=bool(state.current) and not problems, problems=problems,
+        healthy=word == "healthy", problems=problems,
+        lock_alive=alive, running_release=state.running_release,
+        active=None if state.running_release is None else state.running_release == state.current,
+        guard=None if guard is None else asdict(guard), guard_in=guard.seconds_left(state.clock) if guard else None,
+        state=word, reason=reason,
         services=tuple({"service": c.service, "status": c.status, "health": c.health, "restarts": c.restarts,
                         "image": c.image} for c in state.containers),
         deployed_by=manifest.get("deployed_by"), deployed_at=manifest.get("deployed_at"),
         lock=state.lock, app_lock=hold.app_locks(ctx, host), images=manifest.get("pins") or {})
+
+
+def status_word(state: RobotState, problems: Mapping[str, str], lock_alive: bool | None) -> tuple[str, str]:
+    """One word for a robot, and the reason when the word alone would hide something: what
+    runs against what is activated, a deploy in flight or cut off, its lock, its guard."""
+    running, current = state.running_release, state.current
+    where = f"{version_of(running) or 'nothing'} running, {version_of(current) or 'nothing'} active"
+    guard, lock = state.guard, state.lock or {}
+    if guard is not None:
+        who = f"run {guard.run} by {guard.by or '?'}"
+        if guard.acting:
+            return "RECOVERING", f"{where}; {who}: the guard is acting ({guard.reason})"
+        left = guard.seconds_left(state.clock)
+        when = f"in {left} s" if left is not None else "at its deadline"
+        if guard.boot and state.boot and guard.boot != state.boot:
+            return "INTERRUPTED", f"{where}; robot restarted mid-deploy ({who}); the guard {guard.will} now"
+        cut_off = lock.get("run") != guard.run or lock_alive is False
+        word = "INTERRUPTED" if cut_off else "DEPLOYING"
+        gone = " (its process is gone)" if lock_alive is False else ""
+        return word, f"{where}; {who}{gone}; guard {guard.will} {when}"
+    if lock:
+        who = describe(lock)
+        if lock_alive is False:
+            return "INTERRUPTED", f"{where}; locked by {who}, whose process is gone: the next apply takes it over"
+        return ("DEPLOYING" if lock_alive else "LOCKED"), f"{where}; locked by {who}"
+    if running not in (None, current):
+        if current is None:
+            return "UNGATED", f"{where}: these containers never passed a gate here (not deployed)"
+        return "MISMATCH", f"{where}: the running containers are not the activated release"
+    if current is None:
+        return "not deployed", ""
+    if problems:
+        return "UNHEALTHY", "; ".join(f"{s}: {why}" for s, why in problems.items())
+    return "healthy", ""
 
 
 @dataclass(frozen=True)
@@ -79,6 +129,7 @@ class RobotPlan:
     pulls: tuple[str, ...] = ()
     preflight: tuple[str, ...] = ()
     images: Mapping[str, str] = field(default_factory=dict)   # ref -> the digest this run would deploy
+    guard: str = ""        # what the robot's guard does if this deploy loses its controller, and when
 
 
 def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPlan:
@@ -103,7 +154,20 @@ def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPla
     return RobotPlan(host.name, True, current=state.current, new=release.release_id,
                      up_to_date=state.current == release.release_id, diffs=diffs, pulls=pulls,
                      preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)),
-                     images={p.ref: p.digest for p in ctx.images.pins_of(release)} if ctx.images else {})
+                     images={p.ref: p.digest for p in ctx.images.pins_of(release)} if ctx.images else {},
+                     guard=guard_plan(ctx.spec, state.current))
+
+
+def guard_plan(spec, current: str | None) -> str:
+    """The guard's deadline and action, as `plan` shows it."""
+    policy = spec.rollback
+    if policy.guard == "off":
+        return "off (rollback.guard): a deploy that loses its controller stays as it was left"
+    act = ("runs the gate on the robot, then activates or reverts" if policy.guard == "finish"
+           else f"reverts to {current}" if current else "stops the new release")
+    return (f"{policy.guard}: if not activated within {spec.health.timeout + policy.guard_margin:g}s of its start "
+            f"(health.timeout {spec.health.timeout:g}s + rollback.guard_margin {policy.guard_margin:g}s), "
+            f"the robot {act}")
 
 
 def _diff(name: str, old: str | None, new: str) -> str:

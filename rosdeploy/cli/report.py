@@ -215,14 +215,13 @@ def status(out: Output, rows: Sequence[Any]) -> None:
     table = []
     for r in rows:
         if not r.reachable:
-            table.append([r.host, "UNREACHABLE", "-", "-", "-", r.error[:120]])
+            table.append([r.host, "UNREACHABLE", "-", "-", "-", "-", r.error[:120]])
             continue
         services = ", ".join(f"{s['service']}:{s['health'] or s['status']}" for s in r.services) or "none"
         drift = "-" if r.drift is None else ("DRIFT" if r.drift else "in sync")
-        health = "healthy" if r.healthy else ("not deployed" if not r.release else "UNHEALTHY")
         last = f"{r.deployed_at or '-'} by {r.deployed_by or '-'}"
-        table.append([r.host, health, r.version or "-", drift, services, last])
-    out.table(["ROBOT", "STATE", "VERSION", "DRIFT", "SERVICES", "LAST DEPLOY"], table)
+        table.append([r.host, r.state, r.version or "-", drift, services, last, r.reason[:160]])
+    out.table(["ROBOT", "STATE", "VERSION", "DRIFT", "SERVICES", "LAST DEPLOY", "WHY"], table)
 
 
 def plan(out: Output, rows: Sequence[Any]) -> None:
@@ -239,6 +238,8 @@ def plan(out: Output, rows: Sequence[Any]) -> None:
         out.line(out.paint(f"{r.host}: {r.current or 'nothing'} -> {r.new}", "bold"))
         for problem in r.preflight:
             out.error(f"  preflight: {problem}")
+        if r.guard:
+            out.line(f"  guard: {r.guard}")
         for image in r.pulls:
             out.line(f"  pull {image}")
         for ref, digest in r.images.items():

@@ -229,7 +229,7 @@ class Robot:
         elif label == "state":
             out = state_text(history=self.history, containers=self.containers)
         elif label == "activate":
-            self.history.append(json.loads(command.argv[-2]))
+            self.history.append(json.loads(command.argv[7]))
         return Result(command.label, out, "", 0, 0.0)
 
     def check(self, command, what: str = ""):

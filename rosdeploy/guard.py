@@ -1,0 +1,93 @@
+"""The deploy guard: what ends a deploy on the robot when its controller cannot.
+
+While a deploy is in flight (from the lock to the activation), a small container
+runs on the robot: `rosdeploy-guard-<project>`, restart policy `always`, no compose
+labels, running GUARD_SCRIPT with the robot's own tools (`chroot /host`, as the
+deploying user). dockerd starts it again after a reboot, so it acts at boot as well.
+It holds a deadline; when the deadline passes without activation, or it finds it was
+started again (the robot restarted), it ends the deploy by itself:
+
+    revert   start the last activated release (`current`) again, the way the brake does
+    finish   run the release's own gate on the robot; activate it if it passes, else revert
+
+It appends a `guard-rollback` / `guard-finish` history entry with the reason, releases
+the lock of the run that armed it, and removes its own container. The controller
+disarms it by removing the state file (activation, or the run's own end): the guard
+sees that within a second and removes itself. See docs/guard.md.
+
+This module holds the script, the state file's format and the pure decisions made
+from it; commands.py builds the commands that arm and disarm it.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping
+
+MODES = ("revert", "finish", "off")
+STATE = "state"        # armed, waiting for its deadline
+ACTING = "acting"      # the state, renamed when the guard took over
+
+
+@dataclass(frozen=True)
+class Guard:
+    """A guard as its state file on the robot tells it."""
+
+    run: str
+    by: str
+    mode: str                   # revert | finish
+    phase: str                  # prepare (lock to upload) | start (a container of `target` may run)
+    target: str
+    previous: str | None        # `current` when it was armed
+    deadline: int | None        # robot's clock, seconds since the epoch
+    boot: str = ""
+    acting: bool = False
+    reason: str = ""            # why it acts (acting only)
+
+    def seconds_left(self, clock: int | None) -> int | None:
+        if self.deadline is None or clock is None:
+            return None
+        return max(0, self.deadline - clock)
+
+    @property
+    def will(self) -> str:
+        """What it does when it acts: a verb phrase for people."""
+        if self.phase == "prepare":
+            return "releases the lock"
+        if self.mode == "finish":
+            return f"gates {self.target} itself"
+        return f"reverts to {self.previous}" if self.previous else f"stops {self.target}"
+
+
+def parse_guard(text: str | None, acting: bool = False) -> Guard | None:
+    """The state file: `key=value` lines; a later line wins (a re-arm appends)."""
+    if not text or not text.strip():
+        return None
+    values: dict[str, str] = {}
+    for line in text.splitlines():
+        key, sep, value = line.partition("=")
+        if sep:
+            values[key.strip()] = value
+    if not values.get("run"):
+        return None
+    deadline = values.get("deadline", "")
+    return Guard(run=values["run"], by=values.get("by", ""), mode=values.get("mode", "revert"),
+                 phase=values.get("phase", "prepare"), target=values.get("target", ""),
+                 previous=values.get("previous") or None,
+                 deadline=int(deadline) if deadline.isdigit() else None, boot=values.get("boot", ""),
+                 acting=acting, reason=values.get("reason", ""))
+
+
+def state_text(fields: Mapping[str, object]) -> str:
+    """The state the controller arms with (the robot adds dir, phase, deadline, boot).
+    One value per line: a newline inside a value would start a key of its own."""
+    return "".join(f"{k}={' '.join(str(v).split()) if k != 'services' else v}\n" for k, v in fields.items())
+
+
+def probe_spec(topics: list[dict], window: float) -> str:
+    return json.dumps({"topics": topics, "discovery_timeout": 10.0, "window": window}, sort_keys=True)
+
+
+# The guard itself: a fixed script shipped with the package, checked by shellcheck.
+GUARD_SCRIPT = (Path(__file__).parent / "guard.sh").read_text(encoding="utf-8")

@@ -1,0 +1,180 @@
+#!/bin/sh
+# The deploy guard (see rosdeploy/guard.py and docs/guard.md). $1: its directory
+# ($dir/.guard), $2: its container's name. Runs as the deploying user (chroot --userspec)
+# with the robot's own sh, docker and compose.
+set -u
+g=$1; name=$2
+PATH=${PATH:-/usr/bin:/bin}:/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin; export PATH
+say() { printf '%s %s\n' "$(date -u +%Y-%m-%dT%H:%M:%SZ)" "$*" >> "$g/log" 2>/dev/null; }
+# get KEY FILE: the last value of KEY (read by the shell itself: this runs every second)
+get() {
+  v=
+  while IFS= read -r line || [ -n "$line" ]; do case $line in "$1="*) v=${line#*=} ;; esac; done < "$2" 2>/dev/null
+  printf '%s' "$v"
+}
+leave() {
+  rm -f "$g/container"
+  # A new run armed just now and found this container: it stays and guards that run.
+  if [ -f "$g/state" ]; then printf '%s\n' "$name" > "$g/container"; return 1; fi
+  say "guard of run ${run:-?} leaves"
+  docker update --restart=no "$name" >/dev/null 2>&1
+  docker rm -f "$name" >/dev/null 2>&1     # ends this script: the last thing it does
+  exit 0
+}
+compose() { if [ "$flavor" = v1 ]; then docker-compose "$@"; else docker compose "$@"; fi; }
+clean() { printf '%s' "$1" | tr -d '"\\\000-\037'; }
+
+# check RELEASE [SERVICE...]: 0 all of the project's containers run RELEASE, running and
+# healthy (or without a check); 1 not yet; 2 broken (exited, restarting, unhealthy). $why, $sum.
+check() {
+  rel=$1; shift; why=; sum=0; seen=" "; code=0
+  ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project")
+  out=
+  fmt='{{.State.Status}} {{if .State.Health}}{{.State.Health.Status}}{{else}}none{{end}} {{.RestartCount}}'
+  fmt="$fmt"' {{index .Config.Labels "com.docker.compose.service"}}'
+  fmt="$fmt"' {{index .Config.Labels "com.docker.compose.project.working_dir"}}'
+  # shellcheck disable=SC2086  # container ids, one argument each
+  [ -z "$ids" ] || out=$(docker inspect --format "$fmt" $ids 2>/dev/null)
+  while read -r st hl rc svc wd; do
+    [ -n "${svc:-}" ] || continue
+    sum=$((sum + rc)); seen="$seen$svc "
+    case $wd in */releases/"$rel") ;; *) [ $code -ge 1 ] || { why="$svc runs another release"; code=1; }; continue ;; esac
+    case $st in
+      running) ;;
+      exited|dead|restarting) why="$svc: container $st"; code=2; continue ;;
+      *) [ $code -ge 1 ] || { why="$svc: container $st"; code=1; }; continue ;;
+    esac
+    case $hl in
+      unhealthy) why="$svc: health check reports unhealthy"; code=2 ;;
+      starting) [ $code -ge 1 ] || { why="$svc: health starting"; code=1; } ;;
+    esac
+  done <<EOF
+$out
+EOF
+  [ -n "$ids" ] || { why="no container"; code=1; }
+  for s in "$@"; do case $seen in *" $s "*) ;; *) [ $code -ge 1 ] || { why="$s: no container"; code=1; } ;; esac; done
+  return $code
+}
+
+# wait_ok RELEASE SECONDS [SERVICE...]: until check says 0 (then 0), 2, or the time is up
+wait_ok() {
+  rel=$1; end=$(( $(date +%s) + $2 )); shift 2
+  while :; do
+    check "$rel" "$@"; c=$?
+    [ $c = 1 ] || return $c
+    [ "$(date +%s)" -lt "$end" ] || { why="${why:-not healthy} after ${gate}s (health.timeout)"; return 1; }
+    sleep 1
+  done
+}
+
+# The release's own gate, as the controller runs it: running, healthy, no restart over
+# health.stable, then the ROS graph probe inside a container of the release.
+gate_ok() {
+  sh "$g/up.sh" "$root" "$project" "$target" "$flavor" all "" >> "$g/log" 2>&1
+  # shellcheck disable=SC2086  # service names (the fleet file's [a-z0-9_-]), one argument each
+  wait_ok "$target" "$gate" $services || return 1
+  before=$sum
+  sleep "$stable"
+  # shellcheck disable=SC2086  # as above
+  check "$target" $services || return 1
+  [ "$sum" = "$before" ] || { why="a container restarted within health.stable (${stable}s)"; return 1; }
+  [ -n "$probe" ] || return 0
+  c=$(docker ps -q --filter "label=com.docker.compose.project=$project" --filter "label=com.docker.compose.service=$probe" | head -n 1)
+  [ -n "$c" ] || { why="no running $probe container to probe the ROS graph from"; return 1; }
+  out=$(sh "$g/probe.sh" "$c" "$(cat "$g/ros_probe.py")" "$(cat "$g/probe.json")" 2>&1) && return 0
+  why="ROS graph probe failed: $(printf '%s' "$out" | tail -n 1 | cut -c1-300)"
+  return 1
+}
+
+# entry EVENT RELEASE RESULT REASON [ROLLED_BACK_FROM]: one history line
+entry() {
+  rel=null; [ -z "$2" ] || rel="\"$2\""
+  back=; [ -z "${5:-}" ] || back=", \"rolled_back_from\": \"$5\""
+  printf '{"by": "guard (run %s by %s)", "compose": "%s", "event": "%s", "from": "%s", "reason": "%s", "release": %s, "result": "%s"%s, "run": "%s", "time": "%s"}\n' \
+    "$run" "$(clean "$by")" "$flavor" "$1" "$previous" "$(clean "$4")" "$rel" "$3" "$back" "$run" "$(date -u +%Y-%m-%dT%H:%M:%S+00:00)"
+}
+
+revert() {
+  if [ -n "$previous" ] && [ -d "$dir/releases/$previous" ]; then
+    say "starting $previous again ($1)"
+    sh "$g/up.sh" "$root" "$project" "$previous" "$flavor" together "" >> "$g/log" 2>&1
+    if wait_ok "$previous" "$gate"; then result=active; else result=unhealthy; fi
+    entry guard-rollback "$previous" "$result" "$1" "$target" >> "$dir/history.jsonl"
+  else
+    say "no activated release to go back to: stopping $target ($1)"
+    (cd "$dir/releases/$target" && compose -p "$project" -f compose.yml down --remove-orphans) >> "$g/log" 2>&1
+    entry guard-rollback "" stopped "$1; no activated release to go back to, so $target was stopped" "$target" \
+      >> "$dir/history.jsonl"
+  fi
+}
+
+act() {
+  f=$g/acting
+  dir=$(get dir "$f"); project=$(get project "$f"); target=$(get target "$f"); previous=$(get previous "$f")
+  flavor=$(get flavor "$f"); mode=$(get mode "$f"); phase=$(get phase "$f"); services=$(get services "$f")
+  gate=$(get gate "$f"); stable=$(get stable "$f"); keep=$(get keep "$f"); probe=$(get probe "$f")
+  by=$(get by "$f"); reason=$(get reason "$f")
+  root=${dir%/*}
+  say "acting on run $run: $reason (mode $mode, phase $phase)"
+  if [ "$phase" = prepare ]; then
+    entry guard-rollback "$previous" unchanged "$reason before $target started: nothing changed" >> "$dir/history.jsonl"
+  elif [ "$mode" = finish ]; then
+    if gate_ok; then
+      say "gate passed: activating $target"
+      sh "$g/finish.sh" "$root" "$project" "$target" \
+        "$(entry guard-finish "$target" active "$reason; the guard ran the gate and it passed")" "$keep" "" >> "$g/log" 2>&1
+    else
+      say "gate failed: $why"
+      revert "$reason; the guard ran the gate and it failed: $why"
+    fi
+  else
+    revert "$reason"
+  fi
+  # The lock of the run that armed us, and only that one.
+  if grep -qF "\"run\": \"$run\"" "$dir/.lock/owner" 2>/dev/null; then rm -rf "$dir/.lock"; fi
+  rm -f "$g/acting" "$g/started"
+  rmdir "$g/.claim" 2>/dev/null
+  leave
+}
+
+# claim REASON: take the state over (the controller cannot disarm or re-arm any more)
+claim() {
+  mkdir "$g/.claim" 2>/dev/null || return 1
+  if [ "$(get run "$g/state")" = "$run" ]; then
+    { cat "$g/state"; printf 'reason=%s\nacted=%s\n' "$1" "$(date +%s)"; } > "$g/acting.tmp" \
+      && mv "$g/acting.tmp" "$g/acting" && rm -f "$g/state" && return 0
+  fi
+  rmdir "$g/.claim"
+  return 1
+}
+
+if [ -f "$g/acting" ]; then
+  run=$(get run "$g/acting")
+  say "started again while acting: acting again"
+  act
+fi
+[ -f "$g/state" ] || leave
+run=$(get run "$g/state" 2>/dev/null)
+boot=$(cat /proc/sys/kernel/random/boot_id 2>/dev/null)
+restarted=no
+[ "$(get boot "$g/state")" = "$boot" ] || restarted=yes
+# dockerd started this same container again (same run, same container: its hostname):
+# the robot (or its engine) restarted since it was armed
+read -r me < /proc/sys/kernel/hostname 2>/dev/null || me=
+[ "$(cat "$g/started" 2>/dev/null)" != "$run $me" ] || restarted=yes
+printf '%s %s\n' "$run" "$me" > "$g/started"
+say "guard of run $run armed"
+if [ $restarted = yes ]; then
+  claim "robot restarted mid-deploy" && act
+fi
+while :; do
+  [ -f "$g/state" ] || { [ -f "$g/acting" ] && act; leave; continue; }
+  run=$(get run "$g/state")     # a later run may have armed this same container
+  deadline=$(get deadline "$g/state")
+  if [ "$(date +%s)" -ge "${deadline:-0}" ]; then
+    dir=$(get dir "$g/state")
+    if grep -qF "\"run\": \"$run\"" "$dir/.lock/owner" 2>/dev/null; then why="controller lost"; else why="deadline"; fi
+    claim "$why" && act
+  fi
+  sleep 1
+done

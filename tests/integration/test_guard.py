@@ -1,0 +1,275 @@
+"""The deploy guard on the simulated fleet: a deploy whose controller is killed, whose SSH
+link is cut, or whose robot restarts, still ends on a release that passed its gate, by
+the robot's own means (docs/guard.md has the table of these cases and their outcomes).
+
+Faults are per robot, so the cases run in three lanes at once, one lane per robot, each
+case one deploy on its own robot; the controller is a real `rosdeploy apply` process.
+After each case the robot's REAL state is read over SSH (as root, host key verified).
+"""
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from rosdeploy import sim as simulator
+from rosdeploy.deploy import PAUSE_BEFORE_ACTIVATE
+from robots import REPO, RobotShell, all_healthy, write_fleet, write_inventory
+
+pytestmark = pytest.mark.integration
+
+GATE = 30            # health.timeout of the tests' fleet files (s)
+MARGIN = 8           # rollback.guard_margin
+COMMAND_TIMEOUT = 20  # ssh.command_timeout: the guard's deadline before the start
+IMAGES = ("registry.local:5000/demo/driver:{v}", "registry.local:5000/demo/perception:{v}")
+
+
+@dataclass(frozen=True)
+class Case:
+    fault: str          # kill | cut | reboot
+    at: str             # the progress step the fault hits: pull, start, health, activate
+    version: str        # 1.1.0 | 1.2.0-bad
+    mode: str = "revert"
+    as_root: bool = False   # SSH as root with Compose v1 (else the docker-group user `robot`, v2)
+
+    @property
+    def name(self) -> str:
+        return f"{self.fault}@{self.at} {self.version} ({self.mode}{', root, compose v1' if self.as_root else ''})"
+
+    @property
+    def fleet(self) -> str:
+        return "root" if self.as_root else self.mode
+
+    @property
+    def dir(self) -> str:
+        return ("/root" if self.as_root else "/home/robot") + "/rosdeploy/demo"
+
+
+LANES = {
+    "robot1": [Case("kill", "pull", "1.1.0"), Case("kill", "start", "1.2.0-bad"), Case("kill", "health", "1.1.0"),
+               Case("cut", "health", "1.2.0-bad"), Case("reboot", "health", "1.1.0"),
+               Case("kill", "health", "1.2.0-bad", as_root=True)],
+    "robot2": [Case("kill", "pull", "1.2.0-bad"), Case("kill", "start", "1.1.0"), Case("kill", "health", "1.2.0-bad"),
+               Case("reboot", "start", "1.2.0-bad"), Case("kill", "health", "1.1.0", "finish")],
+    "robot3": [Case("kill", "activate", "1.1.0"), Case("cut", "health", "1.1.0"), Case("reboot", "start", "1.1.0"),
+               Case("reboot", "health", "1.2.0-bad"), Case("kill", "health", "1.2.0-bad", "finish")],
+}
+
+
+def cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess[str]:
+    """The CLI in a process of its own: lanes run at once, and in-process runs share stdout."""
+    return subprocess.run([sys.executable, "-m", "rosdeploy", *map(str, args)], capture_output=True, text=True,
+                          cwd=REPO, env=env or os.environ.copy(), timeout=300)
+
+
+def status_of(fleet_file: Path, robot: str) -> dict:
+    out = cli("--json", "status", fleet_file, "--limit", robot)
+    return json.loads(out.stdout)["robots"][0]
+
+
+def guard_gone(shell: RobotShell, folder: str) -> bool:
+    return shell.run(f"docker ps -aq --filter label=rosdeploy.guard; ls {folder}/.guard/state {folder}/.guard/acting "
+                     "2>/dev/null || true").strip() == ""
+
+
+def running_release(shell: RobotShell) -> set[str]:
+    labels = shell.run("for c in $(docker ps -q --filter label=com.docker.compose.project=demo); do "
+                       "docker inspect --format '{{index .Config.Labels \"com.docker.compose.project.working_dir\"}}' "
+                       "$c; done")
+    return {line.rstrip("/").rsplit("/", 1)[-1] for line in labels.split()}
+
+
+class Lane:
+    def __init__(self, fleet, robot: str, files: dict[str, Path]) -> None:
+        self.fleet, self.robot, self.files = fleet, robot, files
+        self.rows: list[tuple[str, str, str]] = []       # (case, outcome, problems)
+
+    def shell(self) -> RobotShell:
+        return RobotShell(self.fleet, self.robot)
+
+    def run(self, cases: list[Case]) -> None:
+        for case in cases:
+            try:
+                problems, outcome = self.one(case)
+            except Exception as exc:         # one case's failure must not hide the others'
+                problems, outcome = [f"{type(exc).__name__}: {exc}"[:600]], "error"
+            self.rows.append((case.name, outcome, "; ".join(problems)))
+
+    def one(self, case: Case) -> tuple[list[str], str]:
+        problems: list[str] = []
+        shell = self.shell()
+        if case.as_root:     # the robot's project handed to root and Compose v1: from 1.0.0 again
+            shell.run("ids=$(docker ps -aq --filter label=com.docker.compose.project=demo); "
+                      "[ -z \"$ids\" ] || docker rm -f $ids >/dev/null")
+            base = cli("--json", "apply", self.files["root"], "--yes", "--limit", self.robot)
+            assert base.returncode == 0, base.stdout[-2000:]
+        home = case.dir.rsplit("/rosdeploy/", 1)[0]
+        before = shell.current(home=home)
+        if case.at == "pull":       # the target's images are pulled again, so the kill lands in the pull
+            shell.run("docker rmi " + " ".join(i.format(v=case.version) for i in IMAGES) + " >/dev/null 2>&1 || true")
+        shell.close()
+        env = dict(os.environ, PYTHONPATH=str(REPO))
+        if case.at == "activate":
+            env[PAUSE_BEFORE_ACTIVATE] = "60"
+        fleet_file = self.files[case.fleet]
+        document = tempfile.TemporaryFile(mode="w+")
+        ctl = subprocess.Popen([sys.executable, "-m", "rosdeploy", "--json", "apply", str(fleet_file), "--yes",
+                                "--limit", self.robot, "--version", case.version],
+                               stdout=document, stderr=subprocess.PIPE, text=True, cwd=REPO, env=env)
+        progress = self.fault_at(ctl, case)
+        seen = None
+        if case.fault == "kill":
+            ctl.send_signal(signal.SIGKILL)
+            ctl.wait()
+            seen = status_of(fleet_file, self.robot)
+        elif case.fault == "cut":
+            out, err = self.ended(ctl, document, GATE + 30, problems)    # the controller notices by itself
+            simulator.heal(self.robot)
+            seen = status_of(fleet_file, self.robot)
+            self.check_report(out, err, problems)
+        else:
+            out, err = self.ended(ctl, document, 120, problems)          # the robot is back: its guard acts
+            seen = status_of(fleet_file, self.robot)
+            self.check_report(out, err, problems)
+        if seen.get("state") not in ("INTERRUPTED", "RECOVERING"):
+            problems.append(f"status said {seen.get('state')!r} ({seen.get('reason')!r}) while interrupted")
+        outcome = self.settle(case, before, problems)
+        again = cli("--json", "apply", self.files["root" if case.as_root else "revert"], "--yes", "--limit", self.robot)
+        if again.returncode != 0:
+            problems.append(f"the next apply did not converge: {again.stdout[-400:]} {again.stderr[-400:]}")
+        if "Traceback" in progress:
+            problems.append("the controller printed a traceback")
+        return problems, outcome
+
+    def fault_at(self, ctl: subprocess.Popen, case: Case) -> str:
+        """Read the controller's progress until the case's step; then put the fault in.
+
+        `health`: the gate's wait for healthy services. A release whose first start level
+        never gets healthy (1.2.0-bad) spends the whole gate inside `start` (the level's
+        wait), and never prints `health`: the fault then comes 6 s into `start`."""
+        marker = {"pull": " pull", "start": " start ", "health": " health", "activate": "pausing"}[case.at]
+        lines: queue.Queue[str] = queue.Queue()
+        threading.Thread(target=lambda: [lines.put(line) for line in ctl.stderr], daemon=True).start()
+        seen: list[str] = []
+        started = None
+        while True:
+            wait = None if started is None else max(0.0, started + 6.0 - time.monotonic())
+            try:
+                line = lines.get(timeout=wait)
+            except queue.Empty:
+                break                                    # 6 s into the start's health wait
+            seen.append(line)
+            if marker in line:
+                break
+            if case.at == "health" and " start " in line:
+                started = time.monotonic()
+        if case.at in ("start", "health") and marker in seen[-1]:
+            time.sleep(1.0)          # well inside the step
+        if case.fault == "cut":
+            simulator.cut(self.robot)
+        elif case.fault == "reboot":
+            simulator.reboot(self.robot)
+        self.rest = lines
+        return "".join(seen)
+
+    def ended(self, ctl: subprocess.Popen, document, timeout: float, problems: list[str]) -> tuple[str, str]:
+        """The controller's result document and the rest of its stderr, once it ended by itself."""
+        try:
+            ctl.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            ctl.kill()
+            ctl.wait()
+            problems.append(f"the controller did not end by itself within {timeout:g}s of the fault")
+        time.sleep(0.5)              # the reader thread takes the last lines
+        err = []
+        while not self.rest.empty():
+            err.append(self.rest.get())
+        document.seek(0)
+        return document.read(), "".join(err)
+
+    @staticmethod
+    def check_report(out: str, err: str, problems: list[str]) -> None:
+        if "Traceback" in err or "Error reading SSH protocol banner" in err:
+            problems.append("paramiko/traceback text in the controller's output")
+        try:
+            host = json.loads(out)["hosts"][0]
+        except (ValueError, IndexError, KeyError):
+            problems.append(f"no result document from the controller: {err[-300:]}")
+            return
+        if "connection lost during" not in host["reason"] or "guard" not in host["reason"]:
+            problems.append(f"the controller's reason does not say where it lost the robot and what the "
+                            f"guard does: {host['reason']!r}")
+
+    def settle(self, case: Case, before: str, problems: list[str]) -> str:
+        """Wait for the guard to end the deploy, then read the robot's real state."""
+        deadline = time.monotonic() + GATE + MARGIN + COMMAND_TIMEOUT + 60
+        shell = self.shell()
+        while not guard_gone(shell, case.dir) and time.monotonic() < deadline:
+            time.sleep(2)
+        if not guard_gone(shell, case.dir):
+            problems.append("the guard did not end the deploy by its deadline")
+        home = case.dir.rsplit("/rosdeploy/", 1)[0]
+        current = shell.current(home=home)
+        history = shell.history(home=home)
+        last = history[-1] if history else {}
+        if not all_healthy(shell, settle=30):
+            problems.append("not healthy")
+        if running_release(shell) != {current}:
+            problems.append(f"running {running_release(shell)} but current is {current}")
+        if not any(e.get("release") == current and e.get("result") == "active" for e in history):
+            problems.append(f"current {current} was never activated")
+        if shell.run(f"test -e {case.dir}/.lock && echo held || true").strip():
+            problems.append("a lock is left")
+        want = "guard-finish" if case.mode == "finish" and case.version == "1.1.0" else "guard-rollback"
+        if last.get("event") != want:
+            problems.append(f"history ends with {last.get('event')!r}, not {want}")
+        why = "robot restarted mid-deploy" if case.fault == "reboot" else "controller lost"
+        if why not in str(last.get("reason", "")):
+            problems.append(f"history's reason {last.get('reason')!r} does not say {why!r}")
+        expect = case.version if want == "guard-finish" else None
+        if expect and not current.startswith(expect):
+            problems.append(f"finish mode should have kept {expect}, runs {current}")
+        if not expect and current != before:
+            problems.append(f"should be back on {before}, is on {current}")
+        shell.close()
+        return f"{last.get('event')} -> {current.rsplit('-', 1)[0]} ({last.get('result')}): {last.get('reason')}"
+
+
+def test_a_deploy_ends_on_a_gated_release_whatever_happens_to_its_controller(fleet, tmp_path: Path) -> None:
+    inventory = write_inventory(fleet, tmp_path)
+    as_root = write_inventory(fleet, tmp_path, ansible_user="root", rosdeploy_compose="v1")
+    files = {}
+    for name, mode, hosts in (("revert", "revert", inventory), ("finish", "finish", inventory),
+                              ("root", "revert", as_root)):
+        folder = tmp_path / name
+        folder.mkdir()
+        files[name] = write_fleet(folder, hosts, health={"timeout": f"{GATE}s", "stable": "2s"},
+                                  rollback={"guard": mode, "guard_margin": f"{MARGIN}s"},
+                                  ssh={"command_timeout": f"{COMMAND_TIMEOUT}s"})
+    # Every image on every robot first (a pull is not what is tested; `ssh.command_timeout`
+    # is short so the guard's deadline before the start is short too)
+    pulls = "; ".join(f"docker pull -q {i.format(v=v)} >/dev/null || {{ sleep 2; docker pull -q {i.format(v=v)}; }}"
+                      for v in ("1.0.0", "1.1.0", "1.2.0-bad") for i in IMAGES)
+    with ThreadPoolExecutor(max_workers=3) as pool:
+        list(pool.map(lambda r: simulator.robot_exec(r, ["sh", "-c", pulls], timeout=600), LANES))
+    base = cli("--json", "apply", files["revert"], "--yes", "--waves", "100%")
+    assert base.returncode == 0, base.stdout[-3000:]
+    lanes = [Lane(fleet, robot, files) for robot in LANES]
+    with ThreadPoolExecutor(max_workers=len(lanes)) as pool:
+        list(pool.map(lambda lane: lane.run(LANES[lane.robot]), lanes))
+    rows = [(lane.robot, *row) for lane in lanes for row in lane.rows]
+    table = "\n".join(f"| {r} | {c} | {o} | {p or 'ok'} |" for r, c, o, p in rows)
+    Path(os.environ.get("ROSDEPLOY_GUARD_TABLE", tmp_path / "guard-cases.md")).write_text(table + "\n")
+    failed = [f"{r} {c}: {p}" for r, c, o, p in rows if p]
+    assert not failed, "\n" + "\n".join(failed) + "\n\n" + table
