@@ -74,8 +74,8 @@ def _service(svc: Any, ctx: Mapping[str, Any], common: Mapping[str, Any], mode: 
         out["command"] = [_lit(w) for w in svc.command]
     out["environment"] = {**common["environment"], **{k: _lit(v) for k, v in svc.environment},
                           **{k: _ref(k) for k in svc.secrets}}
-    out["volumes"] = [_lit(f"./{dds}:/{dds}:ro"), "/dev/shm:/dev/shm", _lit(f"{svc.log_dir}:/ros_log"),
-                      *(_lit(v) for v in svc.volumes)]
+    out["volumes"] = [_lit(f"{ctx['dds_source']}:/{dds}:ro"), "/dev/shm:/dev/shm", _lit(f"{svc.log_dir}:/ros_log"),
+                      *(_lit(v) for v in svc.volumes), *(_lit(m) for m in svc.mounts)]
     if svc.shm_size != ctx["shm_size"]:
         out["shm_size"] = _lit(svc.shm_size)
     out["restart"] = _lit(svc.restart)

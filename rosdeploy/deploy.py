@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Callable, Iterator
 
-from rosdeploy import __version__, commands
+from rosdeploy import __version__, commands, restarts
 from rosdeploy.errors import CommandFailed, ConnectError, RemoteError
 from rosdeploy.health import (Poller, Verdict, diagnose, expected_services, settled, start_levels,
                               started_containers, wait_healthy)
@@ -270,7 +270,10 @@ def mount_sources(spec: FleetSpec) -> dict[str, str]:
 def up_to_date(state: RobotState, release: RenderedRelease, spec: FleetSpec) -> bool:
     if state.current != release.release_id:
         return False
-    on_release = [c for c in state.containers if c.release in ("", release.release_id)]
+    # A container an earlier release started and this one left alone carries this release's hash.
+    wanted = restarts.release_hashes(release)
+    on_release = [c for c in state.containers
+                  if c.release in ("", release.release_id) or (c.hash and c.hash == wanted.get(c.service))]
     return not unhealthy_services(on_release, expected_services(spec))
 
 
@@ -321,6 +324,7 @@ def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: di
         services = tuple(s.name for s in run.spec.services)
         run.t.check(commands.upload(run.root, run.spec.project, new, _tarball(run, release, pulled.stdout),
                                     services), "upload")
+        run.t.check(restarts.link_store(run.root, run.spec.project, new), "upload")
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before switching", **base)
     flavor = state.flavor or "v2"

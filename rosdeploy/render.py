@@ -25,6 +25,7 @@ from xml.sax.saxutils import escape as _xml_escape
 import jinja2
 import yaml
 
+from rosdeploy import restarts
 from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
@@ -218,6 +219,7 @@ class ServiceView:
     labels: tuple[tuple[str, str], ...]
     extra_yaml: str                         # `extra`, YAML-dumped and indented for the service block
     extra: Mapping[str, Any]                # `extra` as data, `$` escaped unless compose_interpolate
+    mounts: tuple[str, ...] = ()            # per-robot files (fleet `files:`), "source:target:ro"
 
 
 @dataclass(frozen=True)
@@ -403,8 +405,9 @@ class Renderer:
             service=svc, image=spec.image_ref(svc), environment=plain, templated=templated,
             secrets=tuple(sorted(svc.secret_env.items())),
             healthcheck=HealthView(tuple(hc.test), hc.interval, hc.timeout, hc.retries, hc.start_period) if hc else None,
-            labels=(("io.rosdeploy.project", spec.project), ("io.rosdeploy.service", svc.name),
-                    ("io.rosdeploy.version", spec.version)),
+            # No release version here: a label that changes with every release would make compose
+            # recreate every container. The per-service hash is added per robot (restarts.py).
+            labels=(("io.rosdeploy.project", spec.project), ("io.rosdeploy.service", svc.name)),
             extra_yaml=extra, extra=extra_data)
 
     def _image_vars(self) -> tuple[tuple[str, str], ...]:
@@ -425,8 +428,15 @@ class Renderer:
         context = self._context(host, problems)
         if problems:
             raise RenderError(problems)
-        files = sorted((self._file(out, tpl, context, host) for out, tpl in self.templates.items()),
-                       key=lambda f: f.name)
+        # compose.yml last: it names the other files by content (restarts.stored) and carries
+        # each service's hash, so unchanged services keep their containers across releases.
+        rendered = [self._file(out, tpl, context, host) for out, tpl in self.templates.items() if out != COMPOSE_FILE]
+        dds = next(f for f in rendered if f.name == self.dds_file)
+        store = [restarts.stored(dds)]
+        context["dds_source"] = restarts.mount_source(store[0])
+        context["services"] = [restarts.with_hash(sv, context) for sv in context["services"]]
+        rendered.append(self._file(COMPOSE_FILE, self.templates[COMPOSE_FILE], context, host))
+        files = sorted(rendered + store, key=lambda f: f.name)
         self._check_leaks(host, files)
         return RenderedRelease(host=host.name, project=self.spec.project, version=self.spec.version,
                                files=tuple(files), images=self.images,
@@ -452,7 +462,7 @@ class Renderer:
             "ros_domain_id": host.ros_domain_id, "fastdds_ports": self._fastdds_ports(host.ros_domain_id),
             "services": [self._service(st, host, variables, problems) for st in self.statics],
             "secrets": self._secrets(host, problems), "peers": self._peers(host, variables, problems),
-            "image_vars": self.image_vars, "udev": self._udev(host, problems),
+            "image_vars": self.image_vars, "udev": self._udev(host, problems), "dds_source": f"./{self.dds_file}",
             "logs_glob": f"{self._deploy_root(host, variables)}/{spec.project}/logs/*/*.log",
             **self._tunables(host, variables, problems),
         }

@@ -5,7 +5,7 @@ import difflib
 from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
-from rosdeploy import commands
+from rosdeploy import commands, restarts
 from rosdeploy.deploy import RobotRun, RunContext, preflight
 from rosdeploy.errors import RemoteError
 from rosdeploy.health import expected_services, settled
@@ -75,6 +75,8 @@ class RobotPlan:
     diffs: tuple[tuple[str, str], ...] = ()      # (file, unified diff); secrets masked by Output
     pulls: tuple[str, ...] = ()
     preflight: tuple[str, ...] = ()
+    restarts: tuple[str, ...] = ()               # services whose containers the switch recreates
+    keeps: tuple[str, ...] = ()                  # services whose containers keep running untouched
 
 
 def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPlan:
@@ -93,12 +95,15 @@ def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPla
     old_files = [None if sections.get(f"file{i}") == "!!absent!!" else sections.get(f"file{i}", "")
                  for i in range(1, len(names) + 1)]
     diffs = tuple((f.name, _diff(f.name, old, f.content)) for f, old in zip(release.files, old_files)
-                  if (old or "").strip() != f.content.strip())
+                  if (old or "").strip() != f.content.strip() and not f.name.startswith(restarts.STORE + "/"))
+    recreate = restarts.will_restart(restarts.release_hashes(release),
+                                     {c.service: c.hash for c in state.containers if c.status == "running"})
     pulls = tuple(line.split(" ", 1)[1] for line in sections.get("images", "").splitlines()
                   if line.startswith("missing "))
     return RobotPlan(host.name, True, current=state.current, new=release.release_id,
                      up_to_date=state.current == release.release_id, diffs=diffs, pulls=pulls,
-                     preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)))
+                     preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)), restarts=recreate,
+                     keeps=tuple(sorted(set(restarts.release_hashes(release)) - set(recreate))))
 
 
 def _diff(name: str, old: str | None, new: str) -> str:

@@ -241,6 +241,9 @@ def plan(out: Output, rows: Sequence[Any]) -> None:
             out.error(f"  preflight: {problem}")
         for image in r.pulls:
             out.line(f"  pull {image}")
+        if r.restarts:
+            out.line(f"  restart {', '.join(r.restarts)}"
+                     + (f" (keep running: {', '.join(r.keeps)})" if r.keeps else ""))
         for name, diff in r.diffs:
             out.line(f"  {name} changes:" if diff else f"  {name}")
             out.line("\n".join("    " + line for line in diff.splitlines()))
