@@ -96,6 +96,18 @@ class Service:
     profiles: tuple[str, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=frozen_map)   # passed through to compose verbatim
     compose_interpolate: bool = False       # `$` in `extra` is compose interpolation (else written `$$`)
+    files: tuple[str, ...] = ()             # names of the fleet's `files:` this service mounts
+
+
+@dataclass(frozen=True)
+class RobotFile:
+    """One entry of the fleet file's `files:`: a per-robot file mounted read-only into services."""
+
+    name: str
+    kind: str                   # "template" (Jinja2, sandboxed) | "copy" (as is) | "var" (an inventory var)
+    source: str                 # a path under the fleet file's folder (may hold {{ }}), or the var's name
+    target: str                 # absolute path in the container
+    secret: bool = False        # may hold vault values: written 0600, masked in plan
 
 
 @dataclass(frozen=True)
@@ -148,6 +160,7 @@ class FleetSpec:
     rollout: RolloutPolicy = RolloutPolicy()
     rollback: RollbackPolicy = RollbackPolicy()
     vars: Mapping[str, Any] = field(default_factory=frozen_map)  # extra template vars
+    files: tuple[RobotFile, ...] = ()   # per-robot files (`files:`), rendered into every release
     # line of every key path in the fleet file, so checks run after loading can say file:line
     lines: Mapping[tuple, int] = field(default_factory=frozen_map, repr=False, compare=False)
 

@@ -17,7 +17,7 @@ import ipaddress
 import json
 import re
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 from xml.sax.saxutils import escape as _xml_escape
@@ -28,6 +28,7 @@ import yaml
 from rosdeploy import restarts
 from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError
+from rosdeploy.files import FileRenderer
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
 from rosdeploy.sandbox import ContainedLoader, Sandbox, describe, render_value, value_template
@@ -323,6 +324,10 @@ class Renderer:
         self.statics = tuple(self._static(s) for s in spec.services)
         self.images = tuple(sorted({s.image for s in self.statics}))
         self.image_vars = self._image_vars()
+        try:
+            self.robot_files = FileRenderer(spec, self.env)
+        except jinja2.TemplateSyntaxError as exc:
+            raise RenderError([self._problem(("files",), f"template syntax error in a path: {exc.message}")]) from exc
 
     # --- setup --------------------------------------------------------------
 
@@ -426,6 +431,7 @@ class Renderer:
     def render(self, host: Host) -> RenderedRelease:
         problems: list[Problem] = []
         context = self._context(host, problems)
+        own = self.robot_files.render(host, context["vars"], problems)
         if problems:
             raise RenderError(problems)
         # compose.yml last: it names the other files by content (restarts.stored) and carries
@@ -434,13 +440,14 @@ class Renderer:
         dds = next(f for f in rendered if f.name == self.dds_file)
         store = [restarts.stored(dds)]
         context["dds_source"] = restarts.mount_source(store[0])
-        context["services"] = [restarts.with_hash(sv, context) for sv in context["services"]]
+        context["services"] = [restarts.with_hash(replace(sv, mounts=own.mounts.get(sv.name, ())), context)
+                               for sv in context["services"]]
         rendered.append(self._file(COMPOSE_FILE, self.templates[COMPOSE_FILE], context, host))
-        files = sorted(rendered + store, key=lambda f: f.name)
+        files = sorted(rendered + store + list(own.files), key=lambda f: f.name)
         self._check_leaks(host, files)
         return RenderedRelease(host=host.name, project=self.spec.project, version=self.spec.version,
                                files=tuple(files), images=self.images,
-                               secret_values=frozenset(value for _, value in context["secrets"]),
+                               secret_values=frozenset(value for _, value in context["secrets"]) | own.secret_values,
                                compose_data=self._compose_data(context, files))
 
     def _compose_data(self, context: Mapping[str, Any], files: list[RenderedFile]) -> Any:
@@ -640,7 +647,8 @@ class Renderer:
     def _check_leaks(host: Host, files: Iterable[RenderedFile]) -> None:
         """compose.yml and the other files are not secret: a vault value in them is a leak."""
         secrets = [s for s in host.secret_values if len(s) >= MIN_LEAK_CHECK]
-        leaked = sorted({f.name for f in files if f.name != ENV_FILE for s in secrets if s in f.content})
+        leaked = sorted({f.name for f in files if f.name != ENV_FILE and not f.secret
+                         for s in secrets if s in f.content})
         if leaked:
             raise RenderError([_host_problem(host, "", f"a secret value would be written to {name}; pass it with "
                                                        "`secrets:` so it goes to .env only") for name in leaked])

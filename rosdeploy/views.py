@@ -5,7 +5,7 @@ import difflib
 from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
-from rosdeploy import commands, restarts
+from rosdeploy import commands, hostchanges, restarts
 from rosdeploy.deploy import RobotRun, RunContext, preflight
 from rosdeploy.errors import RemoteError
 from rosdeploy.health import expected_services, settled
@@ -77,6 +77,7 @@ class RobotPlan:
     preflight: tuple[str, ...] = ()
     restarts: tuple[str, ...] = ()               # services whose containers the switch recreates
     keeps: tuple[str, ...] = ()                  # services whose containers keep running untouched
+    host_changes: tuple[str, ...] = ()           # outside the release dir (rosdeploy.hostchanges)
 
 
 def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPlan:
@@ -103,7 +104,8 @@ def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPla
     return RobotPlan(host.name, True, current=state.current, new=release.release_id,
                      up_to_date=state.current == release.release_id, diffs=diffs, pulls=pulls,
                      preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)), restarts=recreate,
-                     keeps=tuple(sorted(set(restarts.release_hashes(release)) - set(recreate))))
+                     keeps=tuple(sorted(set(restarts.release_hashes(release)) - set(recreate))),
+                     host_changes=hostchanges.describe(release, ctx.spec.project))
 
 
 def _diff(name: str, old: str | None, new: str) -> str:

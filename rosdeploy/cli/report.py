@@ -241,6 +241,8 @@ def plan(out: Output, rows: Sequence[Any]) -> None:
             out.error(f"  preflight: {problem}")
         for image in r.pulls:
             out.line(f"  pull {image}")
+        for change in r.host_changes:
+            out.line(f"  host change: {change}")
         if r.restarts:
             out.line(f"  restart {', '.join(r.restarts)}"
                      + (f" (keep running: {', '.join(r.keeps)})" if r.keeps else ""))

@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from rosdeploy.errors import EXIT_OK
+from rosdeploy.sim import provision, robot_exec
 from robots import RobotShell, all_healthy, rosdeploy, versions, write_fleet, write_inventory
 from robots import apply as deploy
 
@@ -51,3 +52,54 @@ def test_an_upgrade_of_one_image_leaves_the_other_container_untouched(fleet, tmp
     assert back.code == EXIT_OK, back.stderr
     assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"} and all_healthy(shell)
     assert _ids(shell)["driver"][0] == before["driver"][0], "rollback recreates only what differs"
+
+
+def test_a_changed_params_file_recreates_only_the_services_that_mount_it_on_that_robot(fleet, tmp_path: Path) -> None:
+    inventory = write_inventory(fleet, tmp_path)
+    (tmp_path / "params").mkdir()
+    for name in ("robot1", "robot2"):
+        (tmp_path / "params" / f"{name}.yaml").write_text("speed: 1.0\nname: {{ inventory_hostname }}\n")
+    perception = _services(write_fleet(tmp_path, inventory))["perception"]
+    fleet_file = write_fleet(
+        tmp_path, inventory, services={"perception": {**perception, "files": ["params"]}},
+        files={"params": {"template": "params/{{ inventory_hostname }}.yaml", "target": "/config/params.yaml"}})
+    assert deploy(fleet_file, "--limit", "robot1,robot2").code == EXIT_OK
+    shells = {name: RobotShell(fleet, name) for name in ("robot1", "robot2")}
+    before = {name: _ids(shell) for name, shell in shells.items()}
+    read = "docker exec {} cat /config/params.yaml"
+    assert shells["robot1"].run(read.format(before["robot1"]["perception"][0])) == "speed: 1.0\nname: robot1\n"
+
+    (tmp_path / "params" / "robot1.yaml").write_text("speed: 2.5\nname: {{ inventory_hostname }}\n")
+    plan = rosdeploy("--json", "plan", fleet_file, "--limit", "robot1")
+    diffs = dict(plan.doc["robots"][0]["diffs"])
+    assert "+speed: 2.5" in diffs["files/params"] and plan.doc["robots"][0]["restarts"] == ["perception"]
+    run = deploy(fleet_file, "--limit", "robot1,robot2")
+    assert run.code == EXIT_OK, run.stderr
+    assert run.host("robot2")["outcome"] == "unchanged" and _ids(shells["robot2"]) == before["robot2"]
+    after = _ids(shells["robot1"])
+    assert after["driver"] == before["robot1"]["driver"], "the driver does not mount the params file"
+    assert after["perception"][0] != before["robot1"]["perception"][0]
+    assert shells["robot1"].run(read.format(after["perception"][0])) == "speed: 2.5\nname: robot1\n"
+    assert all_healthy(shells["robot1"])
+
+
+def test_a_gpu_robot_deploys_with_the_fake_nvidia_runtime_and_one_without_is_refused(fleet, tmp_path: Path) -> None:
+    inventory = write_inventory(fleet, tmp_path, gpu=True)
+    perception = _services(write_fleet(tmp_path, inventory))["perception"]
+    fleet_file = write_fleet(tmp_path, inventory, services={"perception": {**perception, "gpu": True}},
+                             rollout={"waves": ["100%"], "max_fail": 1})
+    provision.gpu_runtime("robot1")
+    try:
+        run = deploy(fleet_file, "--limit", "robot1,robot2")
+        assert run.host("robot1")["outcome"] == "deployed", run.host("robot1")
+        shell = RobotShell(fleet, "robot1")
+        assert all_healthy(shell)
+        runtime = shell.run("docker inspect --format '{{.HostConfig.Runtime}}' "
+                            + shell.containers()["perception"]["id"]).strip()
+        assert runtime == "nvidia"
+        refused = run.host("robot2")
+        assert refused["outcome"] == "failed" and "no `nvidia` runtime" in refused["reason"], refused
+        assert RobotShell(fleet, "robot2").containers() == {}, "nothing started on the refused robot"
+    finally:
+        robot_exec("robot1", ["/usr/local/sbin/robot-ctl", "reset"], check=True)   # dockerd keeps a runtime in use
+        provision.gpu_runtime("robot1", present=False)

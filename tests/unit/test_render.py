@@ -206,13 +206,12 @@ def test_gpu_reservation_only_when_service_and_robot_have_gpu(service_gpu: bool,
     spec = make_spec(make_service("perception", gpu=service_gpu))
     svc = compose(render(spec, make_host(gpu=host_gpu)))["services"]["perception"]
     if reserved:
-        assert svc["deploy"] == {"resources": {"reservations": {"devices": [
-            {"driver": "nvidia", "count": 1, "capabilities": ["gpu"]}]}}}
+        assert svc["runtime"] == "nvidia" and "deploy" not in svc   # what preflight checks, v1 and v2 alike
         assert svc["environment"]["NVIDIA_VISIBLE_DEVICES"] == "all"
         assert svc["environment"]["NVIDIA_DRIVER_CAPABILITIES"] == "compute,utility,video"
         assert svc["shm_size"] == "1g"
     else:
-        assert "deploy" not in svc and "NVIDIA_VISIBLE_DEVICES" not in svc["environment"]
+        assert "runtime" not in svc and "NVIDIA_VISIBLE_DEVICES" not in svc["environment"]
         assert svc["shm_size"] == "512m"
 
 
@@ -543,7 +542,7 @@ def test_warehouse_example_matches_golden_files() -> None:
 
 def test_warehouse_example_gpu_only_on_the_jetson_robot() -> None:
     releases = _warehouse_releases()
-    gpu = {host for host, rel in releases.items() if "deploy" in compose(rel)["services"]["perception"]}
+    gpu = {host for host, rel in releases.items() if compose(rel)["services"]["perception"].get("runtime") == "nvidia"}
     assert gpu == {"amr-n1"}
     assert compose(releases["amr-n2"])["services"]["perception"]["environment"]["PERCEPTION_MODEL"] == "yolov8n-cpu"
 
