@@ -103,3 +103,57 @@ def test_a_gpu_robot_deploys_with_the_fake_nvidia_runtime_and_one_without_is_ref
     finally:
         robot_exec("robot1", ["/usr/local/sbin/robot-ctl", "reset"], check=True)   # dockerd keeps a runtime in use
         provision.gpu_runtime("robot1", present=False)
+
+
+RULES = "/etc/udev/rules.d/99-rosdeploy-demo.rules"
+
+
+def _rules(shell: RobotShell) -> str:
+    return shell.run(f"cat {RULES} 2>/dev/null || true")
+
+
+def test_udev_rules_installed_as_root_and_through_sudo_and_restored_by_rollback(fleet, tmp_path: Path) -> None:
+    shells = {name: RobotShell(fleet, name) for name in ("robot1", "robot2")}
+    for shell in shells.values():
+        shell.run(f"rm -f {RULES}")
+    root_inv = write_inventory(fleet, tmp_path, ansible_user="root")
+    data = yaml.safe_load(root_inv.read_text())
+    data["all"]["children"]["sim"]["hosts"]["robot2"]["ansible_user"] = "robot"   # through sudo -n
+    root_inv.write_text(yaml.safe_dump(data, sort_keys=False))
+    fleet_file = write_fleet(tmp_path, root_inv)
+    plan = rosdeploy("--json", "plan", fleet_file, "--limit", "robot1")
+    assert "udev rules" in plan.doc["robots"][0]["host_changes"][0]
+    first = deploy(fleet_file, "--limit", "robot1,robot2")
+    assert first.code == EXIT_OK, first.stderr
+    for name, shell in shells.items():
+        assert 'ATTRS{idProduct}=="6001"' in _rules(shell) and 'SYMLINK+="robot/motor"' in _rules(shell), name
+        step = next(s for s in first.host(name)["steps"] if s["name"] == "host changes")
+        assert f"installed {RULES}" in step["detail"] and "no udev on this robot" in step["detail"], step
+
+    data["all"]["vars"]["udev"][0]["product"] = "6015"
+    root_inv.write_text(yaml.safe_dump(data, sort_keys=False))
+    assert deploy(fleet_file, "--limit", "robot1", "--version", "1.1.0").code == EXIT_OK
+    assert 'ATTRS{idProduct}=="6015"' in _rules(shells["robot1"])
+    back = rosdeploy("--json", "rollback", fleet_file, "--yes", "--limit", "robot1")
+    assert back.code == EXIT_OK, back.stderr
+    assert 'ATTRS{idProduct}=="6001"' in _rules(shells["robot1"]), "the rollback restores the kept release's rules"
+
+
+def test_a_non_root_user_without_sudo_is_refused_in_preflight_and_keeps_running(fleet, tmp_path: Path) -> None:
+    inventory = write_inventory(fleet, tmp_path)
+    fleet_file = write_fleet(tmp_path, inventory)
+    assert deploy(fleet_file, "--limit", "robot3").code == EXIT_OK
+    shell = RobotShell(fleet, "robot3")
+    before = _ids(shell)
+    provision.sudo("robot3", present=False)
+    try:
+        run = deploy(fleet_file, "--limit", "robot3", "--version", "1.1.0")
+    finally:
+        provision.sudo("robot3", home=fleet.home)
+    result = run.host("robot3")
+    assert result["outcome"] == "failed" and result["reason"].startswith("preflight:"), result
+    assert all(w in result["reason"] for w in ("need root", "NOPASSWD", "--no-host-changes")), result
+    assert _ids(shell) == before and versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"}
+
+    skipped = deploy(fleet_file, "--limit", "robot3", "--version", "1.1.0", "--no-host-changes")
+    assert skipped.code == EXIT_OK and "--no-host-changes" in skipped.stderr
