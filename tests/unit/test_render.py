@@ -385,7 +385,7 @@ def test_udev_rules_from_inventory() -> None:
     rules = render(FULL, FULL_HOST).file("99-rosdeploy.rules").content
     assert ('SUBSYSTEM=="tty", ATTRS{idVendor}=="0403", ATTRS{idProduct}=="6001", '
             'SYMLINK+="robot/motor", GROUP="dialout", MODE="0660"') in rules.splitlines()
-    assert "udevadm control --reload-rules && udevadm trigger" in rules
+    assert "installs it as" in rules
     empty = render(make_spec(), make_host()).file("99-rosdeploy.rules").content
     assert all(line.startswith("#") for line in empty.splitlines())
 
