@@ -20,7 +20,7 @@ import paramiko
 import pytest
 
 from rosdeploy import keeper, sim
-from rosdeploy.sim import SimFleet, provision
+from rosdeploy.sim import SimFleet
 
 INTEGRATION_DIR = Path(__file__).parent
 
@@ -53,13 +53,9 @@ def sim_fleet() -> Iterator[SimFleet]:
 @pytest.fixture
 def fleet(sim_fleet: SimFleet) -> SimFleet:
     """No compose containers or rosdeploy dirs on any robot, /dev/ttyUSB0 and
-    /dev/robot/motor present, original host keys, registry up; and the user `robot` may
-    `sudo -n` (the sim inventory declares udev rules, which need root to install; the robot
-    image has no sudo yet, so it is provisioned here, at run time)."""
-    fleet = sim.reset(sim_fleet.home)
-    for robot in fleet.robots:
-        provision.sudo(robot.name, home=fleet.home)
-    return fleet
+    /dev/robot/motor present, original host keys, registry up (and `sudo -n` for `robot`,
+    which `sim.up` provisions: the inventory's udev rules need root)."""
+    return sim.reset(sim_fleet.home)
 
 
 def connect(fleet: SimFleet, robot_name: str, user: str = "robot") -> paramiko.SSHClient:
