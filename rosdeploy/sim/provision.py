@@ -85,7 +85,8 @@ def sudo(robot: str, present: bool = True, home: Path | None = None) -> None:
         return
     if robot_exec(robot, ["sh", "-c", "command -v sudo"]).returncode != 0:
         deb = _sudo_deb(home or default_home())
-        docker("cp", str(deb), f"{container_of(robot)}:/tmp/sudo.deb", what=f"{robot}: copy sudo's .deb")
-        robot_exec(robot, ["sh", "-c", "dpkg -i /tmp/sudo.deb >/dev/null && rm /tmp/sudo.deb"], check=True)
+        # not /tmp: a tmpfs in the robot, which `docker cp` writes beneath, unseen
+        docker("cp", str(deb), f"{container_of(robot)}:/root/sudo.deb", what=f"{robot}: copy sudo's .deb")
+        robot_exec(robot, ["sh", "-c", "dpkg -i /root/sudo.deb >/dev/null && rm /root/sudo.deb"], check=True)
     robot_exec(robot, ["sh", "-c", 'umask 0337; printf "robot ALL=(ALL) NOPASSWD: ALL\\n" >"$1"', "sh", SUDOERS],
                check=True)
