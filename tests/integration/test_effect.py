@@ -101,7 +101,7 @@ def test_a_gpu_robot_deploys_with_the_fake_nvidia_runtime_and_one_without_is_ref
         assert refused["outcome"] == "failed" and "no `nvidia` runtime" in refused["reason"], refused
         assert RobotShell(fleet, "robot2").containers() == {}, "nothing started on the refused robot"
     finally:
-        robot_exec("robot1", ["/usr/local/sbin/robot-ctl", "reset"], check=True)   # dockerd keeps a runtime in use
+        robot_exec("robot1", ["/usr/local/sbin/robot-ctl", "reset"], check=True)   # no container on the runtime
         provision.gpu_runtime("robot1", present=False)
 
 
