@@ -146,7 +146,7 @@ ps_json() {
       return
     fi
   fi
-  docker ps -a --filter "label=com.docker.compose.project=$project" --format '{"name":{{json .Names}},"service":{{json (.Label "com.docker.compose.service")}},"image":{{json .Image}},"status":{{json .State}},"ps_status":{{json .Status}},"workdir":{{json (.Label "com.docker.compose.project.working_dir")}},"compose":{{json (.Label "com.docker.compose.version")}}}' 2>/dev/null
+  docker ps -a --filter "label=com.docker.compose.project=$project" --format '{"name":{{json .Names}},"service":{{json (.Label "com.docker.compose.service")}},"image":{{json .Image}},"status":{{json .State}},"ps_status":{{json .Status}},"workdir":{{json (.Label "com.docker.compose.project.working_dir")}},"compose":{{json (.Label "com.docker.compose.version")}},"hash":{{json (.Label "io.rosdeploy.hash")}}}' 2>/dev/null
 }
 """
 

@@ -74,8 +74,8 @@ def _service(svc: Any, ctx: Mapping[str, Any], common: Mapping[str, Any], mode: 
         out["command"] = [_lit(w) for w in svc.command]
     out["environment"] = {**common["environment"], **{k: _lit(v) for k, v in svc.environment},
                           **{k: _ref(k) for k in svc.secrets}}
-    out["volumes"] = [_lit(f"./{dds}:/{dds}:ro"), "/dev/shm:/dev/shm", _lit(f"{svc.log_dir}:/ros_log"),
-                      *(_lit(v) for v in svc.volumes)]
+    out["volumes"] = [_lit(f"{ctx['dds_source']}:/{dds}:ro"), "/dev/shm:/dev/shm", _lit(f"{svc.log_dir}:/ros_log"),
+                      *(_lit(v) for v in svc.volumes), *(_lit(m) for m in svc.mounts)]
     if svc.shm_size != ctx["shm_size"]:
         out["shm_size"] = _lit(svc.shm_size)
     out["restart"] = _lit(svc.restart)
@@ -100,8 +100,11 @@ def _service(svc: Any, ctx: Mapping[str, Any], common: Mapping[str, Any], mode: 
     if svc.profiles:
         out["profiles"] = [_lit(p) for p in svc.profiles]
     if svc.gpu:
-        out["deploy"] = {"resources": {"reservations": {"devices": [
-            {"driver": "nvidia", "count": 1, "capabilities": ["gpu"]}]}}}
+        # The runtime preflight checks for, with NVIDIA_VISIBLE_DEVICES (render.GPU_ENV): what Compose
+        # v1 and v2 both write the same way. A `deploy.resources.reservations` device request needs
+        # dockerd's nvidia device driver as well (nvidia-container-runtime-hook at dockerd start),
+        # which a robot can lack while its `nvidia` runtime is present.
+        out["runtime"] = "nvidia"
     out["labels"] = {key: _lit(value) for key, value in svc.labels}
     out.update(mode.extra(svc))
     return out

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import TYPE_CHECKING, Callable, Iterator
 
-from rosdeploy import __version__, commands, guard, hold
+from rosdeploy import __version__, commands, guard, hold, hostchanges, restarts
 from rosdeploy.errors import CommandFailed, ConnectError, GuardTookOver, RemoteError
 from rosdeploy.health import (PROBE_SOURCE, Poller, Verdict, diagnose, expected_services, probe_service,
                               settled, start_levels, started_containers, topics_spec, wait_healthy)
@@ -65,6 +65,8 @@ class RunContext:
     controller: Controller = field(default_factory=this_controller)   # this machine, for lock owners
     connect: Callable[[Host, SSHOptions], Transport] = connect
     images: "Supply | None" = None      # pinned digests and routes (rosdeploy.images); None: pull by tag
+    host_changes: bool = True                  # udev rules (rosdeploy.hostchanges); --no-host-changes
+    become_password: str | None = field(default=None, repr=False)   # --ask-become-pass
 
 
 def now() -> str:
@@ -359,7 +361,10 @@ def mount_sources(spec: FleetSpec) -> dict[str, str]:
 def up_to_date(state: RobotState, release: RenderedRelease, spec: FleetSpec) -> bool:
     if state.current != release.release_id:
         return False
-    on_release = [c for c in state.containers if c.release in ("", release.release_id)]
+    # A container an earlier release started and this one left alone carries this release's hash.
+    wanted = restarts.release_hashes(release)
+    on_release = [c for c in state.containers
+                  if c.release in ("", release.release_id) or (c.hash and c.hash == wanted.get(c.service))]
     return not unhealthy_services(on_release, expected_services(spec))
 
 
@@ -394,6 +399,9 @@ def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
         return run.result(UNCHANGED, running_release=old, reason="already on this release and healthy", **base)
     state = run.read_state(full=True)    # the preflight facts, only when something will change
     problems = preflight(state, run, run.spec.min_free_disk_mb)
+    if run.ctx.host_changes:
+        problems += hostchanges.preflight(run.t, run.root, run.spec.project, run.host, release,
+                                          run.ctx.become_password)
     if problems:
         return run.result(FAILED, running_release=old, reason="preflight: " + "; ".join(problems), **base)
     holder = run.lock(run.guard_arm(state, release))
@@ -423,8 +431,12 @@ def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: di
         services = tuple(s.name for s in run.spec.services)
         run.t.check(commands.upload(run.root, run.spec.project, new, _tarball(run, release, pulled.stdout),
                                     services, run.rearm("prepare")), "upload")
+        run.t.check(restarts.link_store(run.root, run.spec.project, new), "upload")
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before switching", **base)
+    if not _host_changes(run, new):
+        return run.result(FAILED, running_release=old, reason="host changes failed, nothing restarted: "
+                          + run.steps[-1].detail, **base)
     flavor = state.flavor or "v2"
     verdict = run.start(new, flavor)
     if verdict.ok:
@@ -451,6 +463,7 @@ def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict
         return run.result(STOPPED, running_release=None,
                           reason=why + "; no previous release on the robot, so the failed one was stopped", **failed)
     back = run.start(old, state.flavor or "v2", together=True, services=run.kept_services(old))
+    _host_changes(run, old)   # after the switch: going back must not wait for a round trip more
     run.history({"event": "auto-rollback", "release": old, "rolled_back_from": new,
                  "result": "active" if back.ok else "unhealthy", "reason": verdict.reason,
                  "compose": state.flavor or "v2"})
@@ -458,6 +471,17 @@ def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict
         return run.result(ROLLED_BACK, running_release=old, reason=why + f"; rolled back to {old}", **failed)
     return run.result(FAILED, running_release=old, reason=why + f"; rollback to {old} is unhealthy too: "
                       + back.reason, **failed)
+
+
+def _host_changes(run: RobotRun, release: str) -> bool:
+    """Install `release`'s host changes (udev rules); a step with the robot's notes either way."""
+    if not run.ctx.host_changes:
+        return True
+    began = time.monotonic()
+    ok, notes = hostchanges.install(run.t, run.root, run.spec.project, release, run.host, run.ctx.become_password)
+    if not ok or notes != hostchanges.NOTHING:
+        run.steps.append(Step("host changes", time.monotonic() - began, ok, notes))
+    return ok
 
 
 def _pull_errors(stdout: str, registry: str) -> str:
@@ -537,6 +561,7 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     manifest = state.kept_manifests.get(target)
     verdict = run.start(target, flavor, together=passed_gate(state, target),
                         services=release_services(manifest) if manifest is not None else None)
+    _host_changes(run, target)   # the kept release's rules, after the switch (one round trip to it)
     run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
                           "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback",
                           "compose": flavor})

@@ -22,7 +22,8 @@ from typing import Any, Callable, Iterable, Mapping
 from rosdeploy import ready as readiness, window as windows, yamlsrc
 from rosdeploy.errors import FleetSpecError, InputError, Problem
 from rosdeploy.images.refs import DIGEST_RE, parse_rate
-from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, ImagePolicy, RollbackPolicy, RolloutPolicy,
+from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, ImagePolicy, RobotFile, RollbackPolicy,
+                             RolloutPolicy,
                              Service, Topic, frozen_map)
 from rosdeploy.yamlsrc import Doc, KeyPath
 
@@ -58,7 +59,7 @@ RESERVED_ENV = frozenset({"ROS_DOMAIN_ID", "RMW_IMPLEMENTATION", "CYCLONEDDS_URI
 # compose keys rosdeploy renders from fleet keys; `compose:` may not override them.
 MANAGED_COMPOSE = {"image": "image/tag", "command": "command", "environment": "environment",
                    "env_file": "environment", "devices": "devices", "restart": "restart",
-                   "mem_limit": "resources.memory", "cpus": "resources.cpus", "deploy": "resources/gpu",
+                   "mem_limit": "resources.memory", "cpus": "resources.cpus", "deploy": "resources/gpu", "runtime": "gpu",
                    "healthcheck": "healthcheck", "depends_on": "depends_on", "user": "user",
                    "privileged": "privileged", "profiles": "profiles", "logging": "logging (top level)",
                    "network_mode": "ros.network_mode", "networks": "ros.network_mode", "shm_size": "ros.shm_size",
@@ -565,6 +566,7 @@ SERVICE = {
     "profiles": _listof(_string(NAME_RE, "profile name"), "profile names"),
     "compose": _compose_passthrough,
     "compose_interpolate": _boolean,
+    "files": _listof(_string(NAME_RE, "file name (a key of the top-level `files:`)"), "file names"),
 }
 SECTIONS: dict[str, Mapping[str, Convert]] = {
     "ssh": {"known_hosts": Reader.local_path, "config": Reader.local_path,
@@ -595,6 +597,7 @@ TOP = {
     "vars": _named(ENV_RE, "template variable", lambda r, kp, v: v),
     "ready": readiness.convert,     # the readiness gate (ready.py)
     "window": windows.convert,      # the maintenance window (window.py)
+    "files": _named(NAME_RE, "file", lambda r, kp, v: _robot_file(r, kp, v)),
 }
 
 
@@ -675,6 +678,7 @@ def _check_services(r: Reader, top: dict) -> None:
     if isinstance(probe, str) and probe not in services:
         r.error(("health", "probe_service"), f"no service is named `{probe}`{_did_you_mean(probe, services)}")
     _check_cycles(r, services)
+    _check_file_refs(r, services, top.get("files"))
 
 
 def _check_service(r: Reader, kp: KeyPath, svc: dict, services: dict, registry: Any) -> None:
@@ -776,6 +780,7 @@ def _build(doc: Doc, top: dict) -> FleetSpec:
         images=ImagePolicy(**top.get("images", {})),
         vars=frozen_map(top.get("vars")),
         ready=top.get("ready") or None, window=top.get("window") or None,
+        files=tuple(RobotFile(name=n, **f) for n, f in sorted((top.get("files") or {}).items())),
         lines=frozen_map(doc.lines),
     )
 
@@ -795,8 +800,56 @@ def _service(name: str, d: dict, version: str) -> Service:
         depends_on=d.get("depends_on", ()), topics=d.get("topics", ()), user=d.get("user"),
         privileged=d.get("privileged", False), allow_privileged=d.get("allow_privileged", False),
         profiles=d.get("profiles", ()), extra=frozen_map(d.get("compose")),
-        compose_interpolate=d.get("compose_interpolate", False),
+        compose_interpolate=d.get("compose_interpolate", False), files=d.get("files", ()),
     )
+
+
+FILE_KINDS = ("template", "copy", "var")
+_FILE_SOURCE_RE = re.compile(r"[A-Za-z0-9_.@+{}' |-]+(/[A-Za-z0-9_.@+{}' |-]+)*")
+
+
+def _robot_file(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """`files: {NAME: {template|copy|var: SOURCE, target: /in/container, secret: bool}}`."""
+    d = _section({**{k: _string() for k in FILE_KINDS}, "target": _string(), "secret": _boolean},
+                 required=("target",))(r, kp, value)
+    if d is BAD or BAD in d.values():
+        return BAD
+    kinds = [k for k in FILE_KINDS if k in d]
+    if len(kinds) != 1:
+        return r.error(kp, "give exactly one source: `template:` (a Jinja2 file), `copy:` (a file copied as is) "
+                           "or `var:` (an inventory variable, e.g. calibration in host_vars)")
+    kind, source = kinds[0], d[kinds[0]]
+    if kind == "var" and not ENV_RE.fullmatch(source):
+        return r.error(kp + (kind,), f"{source!r} is not an inventory variable name: use {_pattern_hint(ENV_RE)}")
+    if kind != "var" and (source.startswith(("/", "~")) or ".." in source.split("/")
+                          or not _FILE_SOURCE_RE.fullmatch(source)):
+        return r.error(kp + (kind,), f"{source!r} must be a path inside the fleet repo, relative to the fleet "
+                                     "file, without `..` (e.g. params/{{ inventory_hostname }}.yaml)")
+    target = d["target"]
+    if not ABSOLUTE_PATH_RE.fullmatch(target) or ".." in target.split("/") or target.endswith("/"):
+        return r.error(kp + ("target",), f"{target!r} must be an absolute file path in the container, "
+                                         "e.g. /config/params.yaml")
+    taken = next((m for m in MANAGED_MOUNTS if target == m or target.startswith(m + "/")), None)
+    if taken:
+        return r.error(kp + ("target",), f"{target} is where rosdeploy mounts {taken} itself: choose another path")
+    return {"kind": kind, "source": source, "target": target, "secret": d.get("secret", False)}
+
+
+def _check_file_refs(r: Reader, services: dict, files: Any) -> None:
+    known = files if isinstance(files, dict) else {}
+    for name, svc in services.items():
+        listed = svc.get("files") if isinstance(svc, dict) else None
+        targets: dict[str, str] = {}
+        for i, ref in enumerate(listed if isinstance(listed, tuple) else ()):
+            if ref not in known:
+                from rosdeploy.suggest import did_you_mean
+                hint = did_you_mean(ref, known) or "add it there, or fix the name"
+                r.error(("services", name, "files", i), f"no file is named `{ref}` in the top-level `files:`: {hint}")
+            elif isinstance(known[ref], dict):
+                target = known[ref]["target"]
+                if target in targets:
+                    r.error(("services", name, "files", i), f"`{ref}` and `{targets[target]}` both mount at {target}")
+                targets[target] = ref
 
 
 def problem_at(spec: FleetSpec, keypath: KeyPath, message: str, **kw: Any) -> Problem:

@@ -97,6 +97,18 @@ class Service:
     extra: Mapping[str, Any] = field(default_factory=frozen_map)   # passed through to compose verbatim
     compose_interpolate: bool = False       # `$` in `extra` is compose interpolation (else written `$$`)
     digest: str | None = None               # `image: repo@sha256:…`: the bytes every robot gets under `tag`
+    files: tuple[str, ...] = ()             # names of the fleet's `files:` this service mounts
+
+
+@dataclass(frozen=True)
+class RobotFile:
+    """One entry of the fleet file's `files:`: a per-robot file mounted read-only into services."""
+
+    name: str
+    kind: str                   # "template" (Jinja2, sandboxed) | "copy" (as is) | "var" (an inventory var)
+    source: str                 # a path under the fleet file's folder (may hold {{ }}), or the var's name
+    target: str                 # absolute path in the container
+    secret: bool = False        # may hold vault values: written 0600, masked in plan
 
 
 @dataclass(frozen=True)
@@ -167,6 +179,7 @@ class FleetSpec:
     vars: Mapping[str, Any] = field(default_factory=frozen_map)  # extra template vars
     ready: Any = None               # ready.ReadyPolicy: the readiness gate (None: none)
     window: Any = None              # window.Window: the maintenance window (None: any time)
+    files: tuple[RobotFile, ...] = ()   # per-robot files (`files:`), rendered into every release
     # line of every key path in the fleet file, so checks run after loading can say file:line
     lines: Mapping[tuple, int] = field(default_factory=frozen_map, repr=False, compare=False)
 

@@ -17,7 +17,7 @@ import ipaddress
 import json
 import re
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 from xml.sax.saxutils import escape as _xml_escape
@@ -25,8 +25,10 @@ from xml.sax.saxutils import escape as _xml_escape
 import jinja2
 import yaml
 
+from rosdeploy import restarts
 from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError
+from rosdeploy.files import FileRenderer
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
 from rosdeploy.sandbox import ContainedLoader, Sandbox, describe, render_value, value_template
@@ -218,6 +220,7 @@ class ServiceView:
     labels: tuple[tuple[str, str], ...]
     extra_yaml: str                         # `extra`, YAML-dumped and indented for the service block
     extra: Mapping[str, Any]                # `extra` as data, `$` escaped unless compose_interpolate
+    mounts: tuple[str, ...] = ()            # per-robot files (fleet `files:`), "source:target:ro"
 
 
 @dataclass(frozen=True)
@@ -321,6 +324,10 @@ class Renderer:
         self.statics = tuple(self._static(s) for s in spec.services)
         self.images = tuple(sorted({s.image for s in self.statics}))
         self.image_vars = self._image_vars()
+        try:
+            self.robot_files = FileRenderer(spec, self.env)
+        except jinja2.TemplateSyntaxError as exc:
+            raise RenderError([self._problem(("files",), f"template syntax error in a path: {exc.message}")]) from exc
 
     # --- setup --------------------------------------------------------------
 
@@ -403,8 +410,9 @@ class Renderer:
             service=svc, image=spec.image_ref(svc), environment=plain, templated=templated,
             secrets=tuple(sorted(svc.secret_env.items())),
             healthcheck=HealthView(tuple(hc.test), hc.interval, hc.timeout, hc.retries, hc.start_period) if hc else None,
-            labels=(("io.rosdeploy.project", spec.project), ("io.rosdeploy.service", svc.name),
-                    ("io.rosdeploy.version", spec.version)),
+            # No release version here: a label that changes with every release would make compose
+            # recreate every container. The per-service hash is added per robot (restarts.py).
+            labels=(("io.rosdeploy.project", spec.project), ("io.rosdeploy.service", svc.name)),
             extra_yaml=extra, extra=extra_data)
 
     def _image_vars(self) -> tuple[tuple[str, str], ...]:
@@ -423,14 +431,23 @@ class Renderer:
     def render(self, host: Host) -> RenderedRelease:
         problems: list[Problem] = []
         context = self._context(host, problems)
+        own = self.robot_files.render(host, context["vars"], problems)
         if problems:
             raise RenderError(problems)
-        files = sorted((self._file(out, tpl, context, host) for out, tpl in self.templates.items()),
-                       key=lambda f: f.name)
+        # compose.yml last: it names the other files by content (restarts.stored) and carries
+        # each service's hash, so unchanged services keep their containers across releases.
+        rendered = [self._file(out, tpl, context, host) for out, tpl in self.templates.items() if out != COMPOSE_FILE]
+        dds = next(f for f in rendered if f.name == self.dds_file)
+        store = [restarts.stored(dds)]
+        context["dds_source"] = restarts.mount_source(store[0])
+        context["services"] = [restarts.with_hash(replace(sv, mounts=own.mounts.get(sv.name, ())), context)
+                               for sv in context["services"]]
+        rendered.append(self._file(COMPOSE_FILE, self.templates[COMPOSE_FILE], context, host))
+        files = sorted(rendered + store + list(own.files), key=lambda f: f.name)
         self._check_leaks(host, files)
         return RenderedRelease(host=host.name, project=self.spec.project, version=self.spec.version,
                                files=tuple(files), images=self.images,
-                               secret_values=frozenset(value for _, value in context["secrets"]),
+                               secret_values=frozenset(value for _, value in context["secrets"]) | own.secret_values,
                                compose_data=self._compose_data(context, files))
 
     def _compose_data(self, context: Mapping[str, Any], files: list[RenderedFile]) -> Any:
@@ -452,7 +469,7 @@ class Renderer:
             "ros_domain_id": host.ros_domain_id, "fastdds_ports": self._fastdds_ports(host.ros_domain_id),
             "services": [self._service(st, host, variables, problems) for st in self.statics],
             "secrets": self._secrets(host, problems), "peers": self._peers(host, variables, problems),
-            "image_vars": self.image_vars, "udev": self._udev(host, problems),
+            "image_vars": self.image_vars, "udev": self._udev(host, problems), "dds_source": f"./{self.dds_file}",
             "logs_glob": f"{self._deploy_root(host, variables)}/{spec.project}/logs/*/*.log",
             **self._tunables(host, variables, problems),
         }
@@ -630,7 +647,8 @@ class Renderer:
     def _check_leaks(host: Host, files: Iterable[RenderedFile]) -> None:
         """compose.yml and the other files are not secret: a vault value in them is a leak."""
         secrets = [s for s in host.secret_values if len(s) >= MIN_LEAK_CHECK]
-        leaked = sorted({f.name for f in files if f.name != ENV_FILE for s in secrets if s in f.content})
+        leaked = sorted({f.name for f in files if f.name != ENV_FILE and not f.secret
+                         for s in secrets if s in f.content})
         if leaked:
             raise RenderError([_host_problem(host, "", f"a secret value would be written to {name}; pass it with "
                                                        "`secrets:` so it goes to .env only") for name in leaked])

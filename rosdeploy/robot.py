@@ -27,6 +27,7 @@ class Container:
     test: tuple[str, ...] = ()   # HEALTHCHECK test, e.g. ("CMD", "/opt/check"); () when none
     test_timeout: float = 30.0   # seconds (Docker's default)
     compose: str = ""            # version of the compose that created it (its label)
+    hash: str = ""               # io.rosdeploy.hash: what the container runs (rosdeploy.restarts)
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> "Container":
@@ -38,7 +39,7 @@ class Container:
                    workdir=str(data.get("workdir") or ""),
                    id=str(data.get("id") or ""), test=tuple(str(a) for a in data.get("test") or ()),
                    test_timeout=(int(data.get("test_timeout") or 0) / 1e9) or 30.0,
-                   compose=str(data.get("compose") or ""))
+                   compose=str(data.get("compose") or ""), hash=str(data.get("hash") or ""))
 
 
     @property

@@ -5,7 +5,7 @@ import difflib
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Mapping
 
-from rosdeploy import commands, hold
+from rosdeploy import commands, hold, hostchanges, restarts
 from rosdeploy.deploy import RobotRun, RunContext, preflight
 from rosdeploy.errors import RemoteError
 from rosdeploy.health import expected_services, settled
@@ -130,6 +130,9 @@ class RobotPlan:
     preflight: tuple[str, ...] = ()
     images: Mapping[str, str] = field(default_factory=dict)   # ref -> the digest this run would deploy
     guard: str = ""        # what the robot's guard does if this deploy loses its controller, and when
+    restarts: tuple[str, ...] = ()               # services whose containers the switch recreates
+    keeps: tuple[str, ...] = ()                  # services whose containers keep running untouched
+    host_changes: tuple[str, ...] = ()           # outside the release dir (rosdeploy.hostchanges)
 
 
 def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPlan:
@@ -148,12 +151,16 @@ def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPla
     old_files = [None if sections.get(f"file{i}") == "!!absent!!" else sections.get(f"file{i}", "")
                  for i in range(1, len(names) + 1)]
     diffs = tuple((f.name, _diff(f.name, old, f.content)) for f, old in zip(release.files, old_files)
-                  if (old or "").strip() != f.content.strip())
+                  if (old or "").strip() != f.content.strip() and not f.name.startswith(restarts.STORE + "/"))
+    recreate = restarts.will_restart(restarts.release_hashes(release),
+                                     {c.service: c.hash for c in state.containers if c.status == "running"})
     pulls = tuple(line.split(" ", 1)[1] for line in sections.get("images", "").splitlines()
                   if line.startswith("missing "))
     return RobotPlan(host.name, True, current=state.current, new=release.release_id,
                      up_to_date=state.current == release.release_id, diffs=diffs, pulls=pulls,
-                     preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)),
+                     preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)), restarts=recreate,
+                     keeps=tuple(sorted(set(restarts.release_hashes(release)) - set(recreate))),
+                     host_changes=hostchanges.describe(release, ctx.spec.project),
                      images={p.ref: p.digest for p in ctx.images.pins_of(release)} if ctx.images else {},
                      guard=guard_plan(ctx.spec, state.current))
 

@@ -106,6 +106,10 @@ def _add_run_args(p: Parser) -> None:
                    help="wait this long for a robot's lock held by another run: seconds or 30s, 2m "
                         "(default: fail at once)")
     p.add_argument("--break-lock", action="store_true", help="remove a stale lock left by a dead run")
+    p.add_argument("--no-host-changes", action="store_true",
+                   help="do not install udev rules on the robots (warns: their /dev/robot/* names may be stale)")
+    p.add_argument("--ask-become-pass", action="store_true",
+                   help="ask for the sudo password used for host changes on robots not reached as root")
 
 
 # ----------------------------------------------------------------- loading
@@ -140,7 +144,20 @@ def context(args: argparse.Namespace, spec: FleetSpec, progress: Callable[[str, 
                      connect_timeout=spec.connect_timeout, command_timeout=spec.command_timeout)
     return RunContext(spec=spec, ssh=ssh, run_id=runlog.new_run_id(), operator=local_user_at_host(),
                       progress=progress, lock_wait=getattr(args, "lock_wait", 0.0),
-                      break_lock=getattr(args, "break_lock", False), force=getattr(args, "force", False))
+                      break_lock=getattr(args, "break_lock", False), force=getattr(args, "force", False),
+                      host_changes=not getattr(args, "no_host_changes", False),
+                      become_password=getattr(args, "become_password", None))
+
+
+def host_change_args(args: argparse.Namespace, out: Output) -> None:
+    """--no-host-changes warns; --ask-become-pass asks once, before any robot is touched."""
+    if getattr(args, "no_host_changes", False):
+        out.warn("--no-host-changes: udev rules are not installed or restored on any robot; the /dev/robot/* "
+                 "names they make may be missing or stale")
+    if getattr(args, "ask_become_pass", False):
+        if not out.interactive:
+            raise InputError("--ask-become-pass needs a terminal to ask on; put ansible_become_password in a vault")
+        args.become_password = getpass.getpass("BECOME password: ")
 
 
 def _confirmed(args: argparse.Namespace, out: Output, question: str) -> bool:
@@ -159,6 +176,7 @@ def cmd_apply(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.rollout import apply_fleet
 
     project, hosts, releases = load(args, out)
+    host_change_args(args, out)
     spec = project.spec
     policy = _policy(spec.rollout, args)
     if not _confirmed(args, out, f"Deploy {spec.project} {spec.version} to {len(hosts)} robot(s)?"):
@@ -197,6 +215,7 @@ def cmd_rollback(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.rollout import rollback_fleet
 
     project, hosts, _ = load(args, out, render=False)
+    host_change_args(args, out)
     target = args.to or "their previous release"
     if not _confirmed(args, out, f"Roll back {len(hosts)} robot(s) to {target}?"):
         return _declined(out)

@@ -244,6 +244,11 @@ def plan(out: Output, rows: Sequence[Any]) -> None:
             out.line(f"  pull {image}")
         for ref, digest in r.images.items():
             out.line(f"  image {ref} pinned to {digest}")
+        for change in r.host_changes:
+            out.line(f"  host change: {change}")
+        if r.restarts:
+            out.line(f"  restart {', '.join(r.restarts)}"
+                     + (f" (keep running: {', '.join(r.keeps)})" if r.keeps else ""))
         for name, diff in r.diffs:
             out.line(f"  {name} changes:" if diff else f"  {name}")
             out.line("\n".join("    " + line for line in diff.splitlines()))

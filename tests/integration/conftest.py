@@ -53,7 +53,8 @@ def sim_fleet() -> Iterator[SimFleet]:
 @pytest.fixture
 def fleet(sim_fleet: SimFleet) -> SimFleet:
     """No compose containers or rosdeploy dirs on any robot, /dev/ttyUSB0 and
-    /dev/robot/motor present, original host keys, registry up."""
+    /dev/robot/motor present, original host keys, registry up (and `sudo -n` for `robot`,
+    which `sim.up` provisions: the inventory's udev rules need root)."""
     return sim.reset(sim_fleet.home)
 
 

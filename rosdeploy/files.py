@@ -1,0 +1,136 @@
+"""Per-robot files (the fleet file's `files:`): rendered or copied per robot, mounted read-only.
+
+A params YAML per robot (`template: params/{{ inventory_hostname }}.yaml`), a map copied
+as is (`copy: maps/{{ site }}.yaml`), camera or LiDAR calibration from host_vars
+(`var: camera_calibration`). Each lands in the release twice: files/<name>, which `plan`
+diffs against the running release, and store/<digest>/<file>, which the services that
+name it mount read-only (see rosdeploy.restarts: the same content keeps the same path, so
+a change recreates only the services that mount it). Both are part of the release digest,
+so they roll back with the release.
+
+Source paths are the fleet repo's: relative to the fleet file, rendered per robot in the
+sandbox, and refused when they leave the fleet file's folder (`..`, an absolute path, or a
+symbolic link pointing out).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import jinja2
+import yaml
+
+from rosdeploy import restarts
+from rosdeploy.errors import Problem
+from rosdeploy.model import FleetSpec, Host, RenderedFile, RobotFile
+from rosdeploy.sandbox import render_value, value_template
+from rosdeploy.yamlsrc import Doc
+
+FILES_DIR = "files"
+MAX_BYTES = 50 * 1024 * 1024      # a release is uploaded whole on every deploy
+
+
+@dataclass(frozen=True)
+class RobotFiles:
+    """One robot's files: what goes into the release, and each service's mounts."""
+
+    files: tuple[RenderedFile, ...]
+    mounts: Mapping[str, tuple[str, ...]]     # service -> ("../../store/<digest>/<file>:<target>:ro", ...)
+    secret_values: frozenset[str]
+
+
+class FileRenderer:
+    """Compiles the path templates once; `render(host, variables)` per robot."""
+
+    def __init__(self, spec: FleetSpec, env: jinja2.Environment) -> None:
+        self.spec, self.env = spec, env
+        self.base = Path(spec.path).resolve().parent
+        used = {name for svc in spec.services for name in svc.files}
+        self.entries = tuple(f for f in spec.files if f.name in used)
+        self.paths = {f.name: value_template(env, f.source) for f in self.entries if f.kind != "var"}
+        self._cache: dict[Path, str] = {}
+        self._templates: dict[Path, jinja2.Template] = {}
+
+    def render(self, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> RobotFiles:
+        scope = {**variables, "vars": variables, "host": host, "inventory_hostname": host.name}
+        out: list[RenderedFile] = []
+        stored: dict[str, str] = {}
+        secrets: set[str] = set()
+        for entry in self.entries:
+            content = self._content(entry, host, scope, problems)
+            if content is None:
+                continue
+            mode = 0o600 if entry.secret else 0o644
+            plain = RenderedFile(f"{FILES_DIR}/{entry.name}", content, mode=mode, secret=entry.secret)
+            copy = restarts.stored(plain, entry.target.rsplit("/", 1)[-1])
+            out += [plain, copy]
+            stored[entry.name] = f"{restarts.mount_source(copy)}:{entry.target}:ro"
+            if entry.secret:
+                secrets.update(s for s in host.secret_values if s and s in content)
+        mounts = {svc.name: tuple(stored[n] for n in svc.files if n in stored) for svc in self.spec.services}
+        return RobotFiles(tuple(out), mounts, frozenset(secrets))
+
+    def _problem(self, host: Host, entry: RobotFile, message: str) -> Problem:
+        doc = Doc(self.spec.path, None, self.spec.lines)  # type: ignore[arg-type]
+        return doc.problem(("files", entry.name, entry.kind), f"robot {host.name!r}: {message}")
+
+    def _content(self, entry: RobotFile, host: Host, scope: Mapping[str, Any], problems: list[Problem]) -> str | None:
+        if entry.kind == "var":
+            if entry.source not in scope:
+                problems.append(self._problem(host, entry, f"inventory variable {entry.source!r} is not defined for "
+                                                           "this robot: set it in its host_vars or group_vars"))
+                return None
+            value = scope[entry.source]
+            return value if isinstance(value, str) else yaml.safe_dump(value, sort_keys=True, default_flow_style=False)
+        try:
+            rel = render_value(self.paths[entry.name], scope)
+        except jinja2.TemplateError as exc:
+            problems.append(self._problem(host, entry, exc.message or str(exc)))
+            return None
+        path = self._checked(rel, host, entry, problems)
+        if path is None:
+            return None
+        text = self._read(path, host, entry, problems)
+        if text is None or entry.kind == "copy":
+            return text
+        try:
+            template = self._templates.get(path) or self._templates.setdefault(path, self.env.from_string(text))
+            return render_value(template, scope)
+        except jinja2.TemplateError as exc:
+            lineno = getattr(exc, "lineno", None)
+            line = f" line {lineno}" if lineno else ""
+            problems.append(self._problem(host, entry, f"{path}{line}: {exc.message or exc}"))
+            return None
+
+    def _checked(self, rel: str, host: Host, entry: RobotFile, problems: list[Problem]) -> Path | None:
+        """The source file, only if it is inside the fleet file's folder (links resolved)."""
+        if not rel or rel.startswith(("/", "~")) or ".." in rel.split("/"):
+            problems.append(self._problem(host, entry, f"{rel!r} is not a path inside the fleet repo "
+                                                       "(relative, without `..`)"))
+            return None
+        path = (self.base / rel).resolve()
+        if not path.is_relative_to(self.base):
+            problems.append(self._problem(host, entry, f"{rel} leads out of {self.base} (a symbolic link?): "
+                                                       "keep the file in the fleet repo"))
+            return None
+        if not path.is_file():
+            problems.append(self._problem(host, entry, f"{self.base / rel} does not exist: add it to the fleet "
+                                                       "repo, or fix the path"))
+            return None
+        return path
+
+    def _read(self, path: Path, host: Host, entry: RobotFile, problems: list[Problem]) -> str | None:
+        if path not in self._cache:
+            data = path.read_bytes()
+            if len(data) > MAX_BYTES:
+                problems.append(self._problem(host, entry, f"{path} is over {MAX_BYTES >> 20} MB"))
+                return None
+            try:
+                self._cache[path] = data.decode("utf-8")
+            except UnicodeDecodeError:
+                problems.append(self._problem(host, entry, f"{path} is not UTF-8 text: binary files (e.g. .pgm "
+                                                           "maps) are not supported yet; mount them from the robot "
+                                                           "with `volumes:`"))
+                return None
+        return self._cache[path]

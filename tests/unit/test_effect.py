@@ -1,0 +1,162 @@
+"""Issue 17 in pure code: per-service hashes, per-robot files, GPU reservation, host changes."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from rosdeploy import restarts
+from rosdeploy.errors import FleetSpecError, RenderError
+from rosdeploy.fleet import load_fleet
+from rosdeploy.model import Host
+from rosdeploy.render import Renderer
+
+FLEET = {
+    "project": "demo", "inventory": "./inventory", "registry": "registry.local:5000", "version": "1.0.0",
+    "files": {"params": {"template": "params/{{ inventory_hostname }}.yaml", "target": "/config/params.yaml"},
+              "calib": {"var": "camera_calibration", "target": "/config/camera.yaml"}},
+    "services": {"driver": {"image": "demo/driver", "files": ["params"]},
+                 "perception": {"image": "demo/perception", "files": ["calib"]}},
+}
+
+
+def host(name: str, **vars: object) -> Host:
+    return Host(name=name, groups=("all",), vars={"camera_calibration": {"fx": 1.5}, **vars},
+                address="10.0.0.1", ros_domain_id=7, source="inventory/hosts.yml:2")
+
+
+@pytest.fixture
+def repo(tmp_path: Path) -> Path:
+    (tmp_path / "inventory").mkdir()
+    (tmp_path / "inventory" / "hosts.yml").write_text("all: {}\n")
+    (tmp_path / "params").mkdir()
+    for name in ("r1", "r2"):
+        (tmp_path / "params" / f"{name}.yaml").write_text("speed: {{ max_speed | default(1.0) }}\nname: "
+                                                           "{{ inventory_hostname }}\n")
+    return tmp_path
+
+
+def write(repo: Path, data: dict) -> Path:
+    path = repo / "fleet.yml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def compose(release) -> dict:
+    return yaml.safe_load(release.file("compose.yml").content)
+
+
+def test_files_render_per_robot_and_mount_read_only_where_named(repo: Path) -> None:
+    renderer = Renderer(load_fleet(write(repo, FLEET)))
+    r1, r2 = renderer.render(host("r1", max_speed=2)), renderer.render(host("r2"))
+    assert r1.file("files/params").content == "speed: 2\nname: r1\n"
+    assert r2.file("files/params").content == "speed: 1.0\nname: r2\n"
+    assert yaml.safe_load(r1.file("files/calib").content) == {"fx": 1.5}
+    driver = compose(r1)["services"]["driver"]
+    mount = next(v for v in driver["volumes"] if v.endswith(":/config/params.yaml:ro"))
+    stored = mount.split(":")[0].removeprefix("../../")
+    assert r1.file(stored).content == r1.file("files/params").content
+    assert not any("/config/camera.yaml" in v for v in driver["volumes"])
+    assert any(v.endswith(":/config/camera.yaml:ro") for v in compose(r1)["services"]["perception"]["volumes"])
+    assert r1.digest != renderer.render(host("r1", max_speed=3)).digest
+
+
+def test_a_changed_params_file_changes_only_the_hash_of_services_that_mount_it(repo: Path) -> None:
+    renderer = Renderer(load_fleet(write(repo, FLEET)))
+    before = restarts.release_hashes(renderer.render(host("r1", max_speed=2)))
+    after = restarts.release_hashes(renderer.render(host("r1", max_speed=3)))
+    assert restarts.will_restart(after, before) == ("driver",)
+    assert restarts.will_restart(before, before) == ()
+
+
+def test_an_image_upgrade_changes_only_that_service_hash(repo: Path) -> None:
+    data = {**FLEET, "services": {**FLEET["services"], "driver": {**FLEET["services"]["driver"], "tag": "1.0.0"}}}
+    old = restarts.release_hashes(Renderer(load_fleet(write(repo, data))).render(host("r1")))
+    new = restarts.release_hashes(Renderer(load_fleet(write(repo, data), version="1.1.0")).render(host("r1")))
+    assert restarts.will_restart(new, old) == ("perception",)
+
+
+@pytest.mark.parametrize("source,words", [
+    ("../secrets.yaml", ["without `..`"]), ("/etc/passwd", ["inside the fleet repo"]),
+    ("params/$(id).yaml", ["inside the fleet repo"])])
+def test_file_sources_may_not_leave_the_repo(repo: Path, source: str, words: list[str]) -> None:
+    data = {**FLEET, "files": {**FLEET["files"], "params": {"copy": source, "target": "/p.yaml"}}}
+    with pytest.raises(FleetSpecError) as info:
+        load_fleet(write(repo, data))
+    [problem] = info.value.problems
+    assert problem.key == "files.params.copy" and problem.line, problem
+    assert all(w in problem.message for w in words), problem.message
+
+
+def test_a_rendered_path_leaving_the_repo_or_missing_is_a_render_error(repo: Path) -> None:
+    (repo / "params" / "link.yaml").symlink_to("/etc/hostname")
+    data = {**FLEET, "files": {**FLEET["files"], "params": {"copy": "params/{{ which }}.yaml", "target": "/p.yaml"}}}
+    renderer = Renderer(load_fleet(write(repo, data)))
+    for which, words in (("link", "leads out of"), ("nope", "does not exist"), ("../inventory/hosts", "without `..`")):
+        with pytest.raises(RenderError) as info:
+            renderer.render(host("r1", which=which))
+        assert any(words in p.message and p.key == "files.params.copy" and p.line for p in info.value.problems), \
+            info.value.problems
+
+
+def test_unknown_file_names_and_bad_targets_name_their_key(repo: Path) -> None:
+    data = {**FLEET, "files": {**FLEET["files"], "calib": {"var": "camera_calibration", "target": "/ros_log/x"}},
+            "services": {**FLEET["services"], "driver": {"image": "demo/driver", "files": ["parms"]}}}
+    with pytest.raises(FleetSpecError) as info:
+        load_fleet(write(repo, data))
+    found = {p.key: p.message for p in info.value.problems}
+    assert "did you mean 'params'?" in found["services.driver.files[0]"]
+    assert "rosdeploy mounts /ros_log" in found["files.calib.target"]
+
+
+def test_a_missing_inventory_var_names_the_robot(repo: Path) -> None:
+    renderer = Renderer(load_fleet(write(repo, FLEET)))
+    bare = Host(name="r2", groups=("all",), vars={}, address="10.0.0.2", ros_domain_id=8, source="inv:3")
+    with pytest.raises(RenderError) as info:
+        renderer.render(bare)
+    assert any("camera_calibration" in p.message and "'r2'" in p.message for p in info.value.problems)
+
+
+# ------------------------------------------------------------- host changes
+
+from rosdeploy import hostchanges  # noqa: E402
+
+
+def _h(**vars: object) -> Host:
+    return Host(name="r1", groups=("all",), vars=dict(vars), address="10.0.0.1", ros_domain_id=7, source="inv:2")
+
+
+@pytest.mark.parametrize("vars,mode,refused", [
+    ({"ansible_user": "root"}, "direct", ""),
+    ({"ansible_user": "robot"}, "sudo-n", ""),
+    ({"ansible_user": "robot", "ansible_become_password": "pw-1234"}, "sudo-S", ""),
+    ({"ansible_user": "robot", "ansible_become": False}, "", "ansible_become is false"),
+    ({"ansible_user": "robot", "ansible_become_user": "ros"}, "", "needs root"),
+    ({"ansible_user": "robot", "ansible_become_method": "su"}, "", "not supported")])
+def test_become_follows_ansible_vars(vars: dict, mode: str, refused: str) -> None:
+    how = hostchanges.become(_h(**vars))
+    assert how.mode == mode and refused in how.refused and bool(how.refused) == bool(refused)
+
+
+def test_the_sudo_password_goes_on_stdin_never_in_argv() -> None:
+    how = hostchanges.become(_h(ansible_user="robot"), asked_password="s3cret-pw")
+    cmd = hostchanges.install_command("~/rosdeploy", "demo", "1.0.0-abc", how, ("tty",))
+    assert cmd.stdin == b"s3cret-pw\n" and not any("s3cret" in a for a in cmd.argv)
+    assert "--subsystem-match=tty" in cmd.argv
+
+
+@pytest.mark.parametrize("answer,words", [
+    ("root no-sudo", ["sudo is not installed", "NOPASSWD", "--no-host-changes"]),
+    ("root denied sudo: a password is required", ["a password is required", "--ask-become-pass"])])
+def test_preflight_says_what_is_missing_and_how_to_grant_it(answer: str, words: list[str]) -> None:
+    host = _h(ansible_user="robot")
+    found = hostchanges.problems(f"installed no\n{answer}\nudevadm no\nwant yes\n", host,
+                                 hostchanges.become(host), wanted=True)
+    assert len(found) == 1 and all(w in found[0] for w in words), found
+
+
+def test_no_rules_and_none_installed_need_no_root() -> None:
+    host = _h(ansible_user="robot")
+    assert hostchanges.problems("installed no\nroot no-sudo\n", host, hostchanges.become(host), wanted=False) == []
+    assert hostchanges.problems("installed yes\nroot no-sudo\n", host, hostchanges.become(host), wanted=False)
