@@ -27,26 +27,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests" / "integration"))
 
-from robots import RobotShell, apply, write_fleet, write_inventory  # noqa: E402
+from robots import JOINT_STATES_STAMPS, RobotShell, apply, write_fleet, write_inventory  # noqa: E402
 
 from rosdeploy import sim  # noqa: E402
-
-# Inside the driver's container: stamps of /joint_states arrivals for $1 seconds, as JSON.
-LISTEN = r'''
-import json, sys, time
-import rclpy
-from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import JointState
-rclpy.init()
-node = rclpy.create_node("rosdeploy_gap_bench")
-stamps = []
-node.create_subscription(JointState, "/joint_states", lambda m: stamps.append(time.monotonic()),
-                         qos_profile_sensor_data)
-end = time.monotonic() + float(sys.argv[1])
-while time.monotonic() < end:
-    rclpy.spin_once(node, timeout_sec=0.05)
-print(json.dumps(stamps))
-'''
 
 
 def main() -> int:
@@ -64,7 +47,7 @@ def main() -> int:
     def listen() -> None:
         # the ROS base image needs no setup script: rclpy imports as is (sim/images/ros-base)
         done = subprocess.run(["docker", "exec", "rosdeploy-sim-robot1", "docker", "exec", driver_id,
-                               "python3", "-c", LISTEN, str(listen_for)], capture_output=True, text=True)
+                               "python3", "-c", JOINT_STATES_STAMPS, str(listen_for)], capture_output=True, text=True)
         out["stdout"], out["stderr"] = done.stdout, done.stderr
 
     listener = threading.Thread(target=listen)

@@ -138,3 +138,26 @@ def all_healthy(shell: RobotShell, settle: float = 20.0) -> bool:
 
 def env_without_vault() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if not k.startswith("ROSDEPLOY_VAULT")}
+
+
+# Inside a container on the robot's ROS graph: the arrival times of /joint_states over
+# $1 seconds, as a JSON list (a restart shows as a gap of seconds; the driver publishes at 10 Hz).
+JOINT_STATES_STAMPS = r'''
+import json, sys, time
+import rclpy
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+rclpy.init()
+node = rclpy.create_node("rosdeploy_joint_states_stamps")
+stamps = []
+node.create_subscription(JointState, "/joint_states", lambda m: stamps.append(time.monotonic()),
+                         qos_profile_sensor_data)
+end = time.monotonic() + float(sys.argv[1])
+while time.monotonic() < end:
+    rclpy.spin_once(node, timeout_sec=0.05)
+print(json.dumps(stamps))
+'''
+
+
+def longest_gap(stamps: list[float]) -> float:
+    return max((b - a for a, b in zip(stamps, stamps[1:], strict=False)), default=-1.0)
