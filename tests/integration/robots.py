@@ -141,7 +141,7 @@ def env_without_vault() -> dict[str, str]:
 
 
 # Inside a container on the robot's ROS graph: the arrival times of /joint_states over
-# $1 seconds, as a JSON list (a restart shows as a gap of seconds; the driver publishes at 10 Hz).
+# $1 seconds from the first one, as a JSON list (a restart shows as a gap of seconds; the driver publishes at 10 Hz).
 JOINT_STATES_STAMPS = r'''
 import json, sys, time
 import rclpy
@@ -152,6 +152,10 @@ node = rclpy.create_node("rosdeploy_joint_states_stamps")
 stamps = []
 node.create_subscription(JointState, "/joint_states", lambda m: stamps.append(time.monotonic()),
                          qos_profile_sensor_data)
+# The window opens at the first message: discovery on a loaded robot takes seconds of its own.
+first = time.monotonic() + 20
+while not stamps and time.monotonic() < first:
+    rclpy.spin_once(node, timeout_sec=0.05)
 end = time.monotonic() + float(sys.argv[1])
 while time.monotonic() < end:
     rclpy.spin_once(node, timeout_sec=0.05)
