@@ -30,7 +30,7 @@ import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -71,22 +71,16 @@ class Bench:
             list(pool.map(one, indexes))
 
     def paramiko_fresh(self, indexes: Sequence[int]) -> None:
-        from rosdeploy.commands import Command
         from rosdeploy.transport import connect
-
-        def one(i: int) -> None:
-            transport = connect(self.hosts[i], self.options)
-            try:
-                assert transport.run(Command(("true",))).exited == 0
-            finally:
-                transport.close()
-        self._threads(indexes, one)
+        self._true_on(indexes, connect)
 
     def keeper_held(self, indexes: Sequence[int]) -> None:
-        from rosdeploy.commands import Command
         from rosdeploy.keeper import kept_connect
+        self._true_on(indexes, kept_connect(60))
 
-        connect = kept_connect(60)
+    def _true_on(self, indexes: Sequence[int], connect: Callable[..., Any]) -> None:
+        """`true` on each target over a connection from `connect`, all at once (the two ways differ only there)."""
+        from rosdeploy.commands import Command
 
         def one(i: int) -> None:
             transport = connect(self.hosts[i], self.options)
