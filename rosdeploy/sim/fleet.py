@@ -86,11 +86,6 @@ def up(robots: int = 3, home: Path | str | None = None, progress: Progress | Non
     write_state(paths, SimState(tuple(r.name for r in fleet), pid))
     progress(f"waiting for {len(fleet)} robots (sshd and their own dockerd)")
     wait_ready(fleet)
-    # The inventory declares udev rules, which the user `robot` installs through `sudo -n`;
-    # the robot image has no sudo yet (rosdeploy.sim.provision), so it is added at run time.
-    from rosdeploy.sim import provision
-    for robot in fleet:
-        provision.sudo(robot.name, home=paths.home)
     progress(f"fleet up: inventory {paths.inventory}")
     return fleet_of(paths, fleet)
 

@@ -31,8 +31,10 @@ from rosdeploy.sim.rootfs import TRIM, RootfsSpec, build_rootfs_image, host_code
 IMAGES_DIR = Path(__file__).parent / "images"
 RECIPE = "1"   # bump when the build steps change in a way the hashed files do not show
 
+# sudo, logrotate and cron: what a Debian robot brings for rosdeploy's host changes (udev rules
+# through `sudo -n`, the ROS log rotation schedule).
 ROBOT_ROOTFS = RootfsSpec("robot-rootfs", ("openssh-server", "docker.io", "docker-compose", "iproute2",
-                                           "procps", "ca-certificates", "tini"))
+                                           "procps", "ca-certificates", "tini", "sudo", "logrotate", "cron"))
 APP_ROOTFS = RootfsSpec("app-rootfs", ("python3", "python3-venv"))
 
 COMPOSE_PLUGIN_DIRS = ("~/.docker/cli-plugins", "/usr/local/lib/docker/cli-plugins",

@@ -1,20 +1,13 @@
-"""Give a simulated robot, at run time, what some robots have and the robot image lacks:
-an `nvidia` Docker runtime, sudo for the `robot` user. Each has its undo, so a test
-leaves the shared fleet as it found it (robot-ctl reset does not know about these).
-
-Nothing here changes the robot image (three engineers share one fleet; a changed image
-recreates every robot). What is worth folding into the image later: see the README
-("Host changes, per-robot files, GPUs").
+"""Change, at run time, what differs between real robots and the robot image: an `nvidia`
+Docker runtime (the image has none), the `robot` user's sudo rule (the image has one).
+Each has its undo, so a test leaves the shared fleet as it found it (robot-ctl reset does
+not know about these).
 """
 from __future__ import annotations
 
 import json
-import subprocess
-from pathlib import Path
 
 from rosdeploy.errors import SimError
-from rosdeploy.sim.model import container_of, default_home
-from rosdeploy.sim.proc import docker
 from rosdeploy.sim.robots import robot_exec
 
 DAEMON_JSON = "/etc/docker/daemon.json"
@@ -62,33 +55,11 @@ def _wait_runtime(robot: str, tries: int = 50) -> None:
     raise SimError(f"{robot}: dockerd did not add the nvidia runtime on SIGHUP")
 
 
-def _sudo_deb(home: Path) -> Path:
-    """sudo's .deb, downloaded once by the host into the sim home (the robots have no network)."""
-    cache = home / "debs"
-    found = sorted(cache.glob("sudo_*.deb"))
-    if found:
-        return found[-1]
-    cache.mkdir(parents=True, exist_ok=True)
-    for argv in (["apt-get", "download", "sudo"], ["apt-get", "update", "-qq"], ["apt-get", "download", "sudo"]):
-        done = subprocess.run(argv, cwd=cache, capture_output=True, text=True)
-        if argv[1] == "download" and done.returncode == 0:
-            break
-    found = sorted(cache.glob("sudo_*.deb"))
-    if not found:
-        raise SimError(f"could not download sudo's .deb into {cache}: {done.stderr.strip()[-300:]}")
-    return found[-1]
-
-
-def sudo(robot: str, present: bool = True, home: Path | None = None) -> None:
-    """sudo with `robot ALL=(ALL) NOPASSWD: ALL` (present), or that entry taken away (the
-    package stays: a robot with sudo installed but no rule for the user is the case to test)."""
+def sudo(robot: str, present: bool = True) -> None:
+    """The image's `robot ALL=(ALL) NOPASSWD: ALL` (present), or that rule taken away (sudo
+    stays installed: a robot with sudo but no rule for the user is the case to test)."""
     if not present:
         robot_exec(robot, ["rm", "-f", SUDOERS], check=True)
         return
-    if robot_exec(robot, ["sh", "-c", "command -v sudo"]).returncode != 0:
-        deb = _sudo_deb(home or default_home())
-        # not /tmp: a tmpfs in the robot, which `docker cp` writes beneath, unseen
-        docker("cp", str(deb), f"{container_of(robot)}:/root/sudo.deb", what=f"{robot}: copy sudo's .deb")
-        robot_exec(robot, ["sh", "-c", "dpkg -i /root/sudo.deb >/dev/null && rm /root/sudo.deb"], check=True)
     robot_exec(robot, ["sh", "-c", 'umask 0337; printf "robot ALL=(ALL) NOPASSWD: ALL\\n" >"$1"', "sh", SUDOERS],
                check=True)

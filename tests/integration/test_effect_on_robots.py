@@ -149,7 +149,7 @@ def test_a_non_root_user_without_sudo_is_refused_in_preflight_and_keeps_running(
     try:
         run = deploy(fleet_file, "--limit", "robot3", "--version", "1.1.0")
     finally:
-        provision.sudo("robot3", home=fleet.home)
+        provision.sudo("robot3")
     result = run.host("robot3")
     assert result["outcome"] == "failed" and result["reason"].startswith("preflight:"), result
     assert all(w in result["reason"] for w in ("need root", "NOPASSWD", "--no-host-changes")), result
