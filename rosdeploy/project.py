@@ -13,8 +13,10 @@ touched. So a command cannot forget the validation `validate` and `check` run.
 """
 from __future__ import annotations
 
+import gc
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 from rosdeploy.errors import InputError, Problem, RenderError
 from rosdeploy.fleet import load_fleet
@@ -52,9 +54,29 @@ def load_project(fleet_path: str, *, inventory: str | None = None, version: str 
 
     `vault`, when given (e.g. several --vault-id, see cli.vault.vault_from_args), replaces the
     password file and prompt arguments."""
-    spec = load_fleet(fleet_path, inventory=inventory, version=version)
-    vault = vault or Vault(password_file=vault_password_file, prompt=prompt)
-    return Project(spec, load_inventory(spec.inventory, vault=vault))
+    with gc_paused():
+        spec = load_fleet(fleet_path, inventory=inventory, version=version)
+        vault = vault or Vault(password_file=vault_password_file, prompt=prompt)
+        return Project(spec, load_inventory(spec.inventory, vault=vault))
+
+
+@contextmanager
+def gc_paused() -> Iterator[None]:
+    """The cyclic garbage collector off while a stage builds data it keeps.
+
+    Loading and rendering 5,000 robots keep about a million small objects alive, and each of the
+    collector's full passes walks all of them: a quarter of the CPU time of `render` and `check`
+    (issue 18, bench/validate_bench.py). These stages make no reference cycles worth collecting
+    (the peak RSS is the same within 3%); the collector resumes after.
+    """
+    if not gc.isenabled():
+        yield
+        return
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.enable()
 
 
 def deployable(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
@@ -104,9 +126,10 @@ def _same_on(p: Problem, robots: list[str]) -> Problem:
 def prepare(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
     """Render every robot once and run every rule on the result: releases and findings, errors first."""
     from rosdeploy import checks, ready
-    releases, problems = _render_all(project, hosts)
-    problems += ready.host_problems(project.spec, hosts)     # inventory `ready:` / `window:` overrides
-    found = checks.run_checks(project.spec, hosts, releases, all_hosts=tuple(project.inventory.hosts.values()))
+    with gc_paused():
+        releases, problems = _render_all(project, hosts)
+        problems += ready.host_problems(project.spec, hosts)     # inventory `ready:` / `window:` overrides
+        found = checks.run_checks(project.spec, hosts, releases, all_hosts=tuple(project.inventory.hosts.values()))
     return releases, sorted(problems + found, key=checks.sort_key)
 
 

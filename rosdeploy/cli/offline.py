@@ -109,17 +109,27 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
 
 
 def write_release(folder: Path, release: RenderedRelease) -> Path:
-    """Every file of the release under `folder`, with its mode (.env stays 0600 whatever the umask)."""
+    """Every file of the release under `folder`, with its mode (.env stays 0600 whatever the umask).
+
+    Plain os calls and each folder made once: 5,000 robots are 30,000 files (issue 18)."""
+    made: set[str] = set()
     for f in release.files:
-        target = folder / f.name
-        if Path(f.name).is_absolute() or ".." in Path(f.name).parts:
+        if f.name.startswith("/") or ".." in f.name.split("/"):
             raise InputError([Problem(f.name, None, "", "a rendered file name leaves the release folder; "
                                                         "rename the template")])
-        target.parent.mkdir(parents=True, exist_ok=True)
+        target = os.path.join(folder, f.name)
+        parent = os.path.dirname(target)
+        if parent not in made:
+            os.makedirs(parent, exist_ok=True)
+            made.add(parent)
         fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, f.mode)
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            os.fchmod(handle.fileno(), f.mode)   # O_CREAT's mode is cut by the umask; an old file kept its own
-            handle.write(f.content)
+        try:
+            os.fchmod(fd, f.mode)   # O_CREAT's mode is cut by the umask; an old file kept its own
+            data = memoryview(f.content.encode("utf-8"))
+            while data:
+                data = data[os.write(fd, data):]
+        finally:
+            os.close(fd)
     return folder
 
 
