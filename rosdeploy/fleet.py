@@ -19,7 +19,7 @@ import shlex
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
-from rosdeploy import ready as readiness, window as windows, yamlsrc
+from rosdeploy import ready as readiness, schema_quick, window as windows, yamlsrc
 from rosdeploy.errors import FleetSpecError, InputError, Problem
 from rosdeploy.images.refs import DIGEST_RE, parse_rate
 from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, ImagePolicy, RobotFile, RollbackPolicy,
@@ -518,8 +518,8 @@ def _compose_passthrough(r: Reader, kp: KeyPath, value: Any) -> Any:
 
 def _compose_schema(r: Reader, kp: KeyPath, extra: dict) -> None:
     from rosdeploy.suggest import did_you_mean
-    validator = _compose_validator()
-    known = validator.schema["definitions"]["service"]["properties"]
+    schema = _compose_schema_data()
+    known = schema["definitions"]["service"]["properties"]
     checked = {}
     for key, item in extra.items():
         if isinstance(key, str) and (key in known or key.startswith("x-")):
@@ -528,22 +528,31 @@ def _compose_schema(r: Reader, kp: KeyPath, extra: dict) -> None:
             hint = did_you_mean(key, [k for k in known if k not in MANAGED_COMPOSE])
             r.error(kp + (key,), f"unknown compose service key {key!r}: {hint or 'see the Compose specification'}"
                                  " (Compose v1 would refuse the file)")
-    for err in sorted(validator.iter_errors({"services": {"s": checked}}), key=lambda e: list(map(str, e.path))):
+    document = {"services": {"s": checked}}
+    if schema_quick.verdict(schema, document) is True:
+        return   # valid for certain: no need to import jsonschema (schema_quick.py says why)
+    for err in sorted(_compose_validator().iter_errors(document), key=lambda e: list(map(str, e.path))):
         path = tuple(err.path)[2:]
         r.error(kp + path, f"not valid for compose: {err.message[:200]}")
 
 
+_SCHEMA: list[Any] = []
 _VALIDATOR: list[Any] = []
 
 
-def _compose_validator() -> Any:
-    """Built once per process (the schema is 800 lines); jsonschema imported only when `compose:` is used."""
-    if not _VALIDATOR:
+def _compose_schema_data() -> Any:
+    """The Compose schema, read once per process (800 lines)."""
+    if not _SCHEMA:
         import json
+        _SCHEMA.append(json.loads(COMPOSE_SCHEMA.read_text(encoding="utf-8")))
+    return _SCHEMA[0]
 
+
+def _compose_validator() -> Any:
+    """Built once per process; jsonschema is imported only when schema_quick cannot vouch for `compose:`."""
+    if not _VALIDATOR:
         import jsonschema  # type: ignore[import-untyped]  # no stubs; used through Any
-        schema = json.loads(COMPOSE_SCHEMA.read_text(encoding="utf-8"))
-        _VALIDATOR.append(jsonschema.Draft201909Validator(schema))
+        _VALIDATOR.append(jsonschema.Draft201909Validator(_compose_schema_data()))
     return _VALIDATOR[0]
 
 

@@ -20,7 +20,6 @@ import traceback
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping
-from xml.sax.saxutils import escape as _xml_escape
 
 import jinja2
 import yaml
@@ -138,7 +137,10 @@ def xml(value: Any) -> str:
     text = str(value)
     if _LINE_BREAKS.search(text.replace("\t", "")) or _YAML_UNSAFE.search(text):
         raise _Rejected(f"{text!r} contains a control character and cannot go into an XML file")
-    return _xml_escape(text, {'"': "&quot;", "'": "&apos;"})
+    # What xml.sax.saxutils.escape(text, {'"': ..., "'": ...}) does; that module imports
+    # urllib.request (http.client, ssl, email): 12 ms of every command's start (issue 18).
+    return (text.replace("&", "&amp;").replace(">", "&gt;").replace("<", "&lt;")
+            .replace('"', "&quot;").replace("'", "&apos;"))
 
 
 def env_value(value: Any) -> str:
