@@ -63,6 +63,7 @@ FASTDDS_PARTICIPANT_SLOTS = 4    # Fast DDS's maxInitialPeersRange: participant 
 _SERVICE_NAME = re.compile(r"[a-zA-Z0-9][a-zA-Z0-9_.-]*\Z")
 _ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 _HEX4 = re.compile(r"[0-9a-fA-F]{4}\Z")
+_SPACE = re.compile(r"\s")   # str.isspace, character by character (both are Py_UNICODE_ISSPACE)
 MIN_LEAK_CHECK = 4               # shorter vault values would match innocent text
 # Characters YAML may not carry raw inside a quoted scalar (non-printable, or read as line breaks).
 _YAML_UNSAFE = re.compile("[\x7f-\x9f\u2028\u2029\ufeff\ud800-\udfff]")
@@ -493,7 +494,7 @@ class Renderer:
                                               f"service {svc.name} needs device {logical!r}, which the robot's "
                                               f"devices map does not define"))
                 continue
-            if not path.startswith("/") or ":" in path or any(c.isspace() for c in path):
+            if not path.startswith("/") or ":" in path or _SPACE.search(path):
                 problems.append(_host_problem(host, f"devices.{logical}",
                                               f"device path {path!r} must be absolute, without ':' or spaces"))
                 continue

@@ -63,9 +63,10 @@ def service_hash(svc: Any, ctx: Mapping[str, Any]) -> str:
 
 
 def _json_value(value: Any) -> Any:
-    """What json.dumps cannot write: a dataclass as its fields (as asdict gives them), else its str."""
+    """What json.dumps cannot write: a dataclass as its fields (json.dumps comes back here for a
+    nested one, so the text is asdict's), anything else as its str."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return dataclasses.asdict(value)
+        return {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
     return str(value)
 
 

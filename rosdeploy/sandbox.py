@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, MutableMapping
 
 import jinja2
 import jinja2.nodes
@@ -56,6 +56,12 @@ class Sandbox(ImmutableSandboxedEnvironment):
         for name in _WIDTH_FILTERS:
             self.filters[name] = _bounded_filter(self.filters[name])
         self.filters["format"] = _checked_format(self.filters["format"])
+
+    def make_globals(self, d: MutableMapping[str, Any] | None) -> MutableMapping[str, Any]:
+        """A plain dict, not Jinja's ChainMap: every render copies a template's globals twice, and
+        iterating a ChainMap was 8% of rendering 500 robots. The same names and values, since
+        nothing changes this environment's globals after __init__."""
+        return {**self.globals, **(d or {})}
 
     def getattr(self, obj: Any, attribute: str) -> Any:
         if type(obj) in self.plain_types and not attribute.startswith("_"):
