@@ -1,12 +1,19 @@
 """Benchmark: `validate`, `check` and `render` over a generated fleet, each in its own process.
 
-    python bench/validate_bench.py [--robots 500 5000] [--runs 3]
+    python bench/validate_bench.py [--robots 500 5000] [--runs 3] [--against DIR] [--render-out DIR]
 
 Builds the same project as bench/render_bench.py (YAML inventory, group_vars, 3 services,
-devices, udev, a vault-free secret, one robot in ten with a GPU) for each robot count, then
+devices, udev, a vault file, one robot in ten with a GPU) for each robot count, then
 runs `python -m rosdeploy validate|check|render` on it in a subprocess, as a user would.
 Reports the median wall time and the peak RSS of the child (resource.getrusage of
 RUSAGE_CHILDREN, read after each run: one child per measurement, so the peak is its own).
+
+`--against DIR` measures another checkout's code (e.g. a worktree of main) in the same run,
+alternating the two run by run so both see the same load, and prints the ratio of the
+medians (this code / DIR's). The load average is printed before and after: the machine may
+be shared. Children run with bytecode caching on whatever the caller's environment says
+(PYTHONDONTWRITEBYTECODE dropped), as an installed rosdeploy has its .pyc files; one warm-up
+run per checkout writes them. `render` writes into a fresh folder each run.
 
 Targets (issue 18): 500 robots <= 0.5 s each; 5,000 robots <= 5 s and under 300 MB each.
 Exit 1 when a target is missed.
@@ -15,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -31,36 +39,46 @@ COMMANDS = ("validate", "check", "render")
 TARGETS = {500: (0.5, None), 5000: (5.0, 300)}   # robots -> (seconds, MB or None)
 
 
-def measure(fleet: Path, command: str, out: Path) -> tuple[float, float, int]:
-    """One child process: (wall seconds, peak RSS in MB, exit code)."""
+Run = tuple[float, float, int, float]   # wall seconds, peak RSS in MB, exit code, CPU seconds
+
+
+def measure(fleet: Path, command: str, out: Path, code: Path = REPO) -> Run:
+    """One child process running `code`'s rosdeploy."""
     argv = [sys.executable, "-m", "rosdeploy", command, str(fleet),
             "--vault-password-file", str(fleet.parent / "vault-password")]
     if command == "render":
+        shutil.rmtree(out, ignore_errors=True)
         argv += ["--out", str(out)]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
     t0 = time.perf_counter()
     # A fresh interpreter per run: RUSAGE_CHILDREN's ru_maxrss is the largest child so far,
     # so each measurement runs in a grandchild whose own peak the child reports.
     probe = [sys.executable, "-c", _PROBE, *argv]
-    done = subprocess.run(probe, cwd=REPO, env=env, capture_output=True, text=True)
+    done = subprocess.run(probe, cwd=code, env=_env(code), capture_output=True, text=True)
     wall = time.perf_counter() - t0
-    code_text, _, rss_text = done.stdout.strip().rpartition("\n")[2].partition(" ")
-    return wall, int(rss_text) / 1024, int(code_text)
+    exit_code, rss, cpu = done.stdout.strip().rpartition("\n")[2].split()
+    return wall, int(rss) / 1024, int(exit_code), float(cpu)
+
+
+def _env(code: Path) -> dict[str, str]:
+    env = {**os.environ, "PYTHONPATH": str(code)}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
 
 
 def startup() -> float:
     """Seconds for `python -c 'import rosdeploy.cli'`: the floor of every command on this machine."""
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-c", "import rosdeploy.cli; rosdeploy.cli.build_parser()"], cwd=REPO,
-                   env={**os.environ, "PYTHONPATH": str(REPO)}, check=True)
+                   env=_env(REPO), check=True)
     return time.perf_counter() - t0
 
 
-# Runs argv, then prints "<exit code> <peak RSS of that child in KiB>".
+# Runs argv, then prints "<exit code> <peak RSS of that child in KiB> <its user+system CPU seconds>".
 _PROBE = """
 import resource, subprocess, sys
 code = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
-print(code, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+print(code, usage.ru_maxrss, usage.ru_utime + usage.ru_stime)
 """
 
 
@@ -68,30 +86,51 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", type=int, nargs="+", default=[500, 5000])
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--against", metavar="DIR", type=Path,
+                        help="another checkout to measure in the same run, alternating (e.g. a worktree of main)")
     parser.add_argument("--render-out", metavar="DIR", help="where render writes (default: beside the fleet, "
                         "on disk; /dev/shm separates rosdeploy's time from the disk's)")
     args = parser.parse_args(argv)
+    codes = [REPO] + ([args.against.resolve()] if args.against else [])
     missed = 0
-    print(f"interpreter + imports alone: {startup():.2f} s")
-    print(f"{'robots':>7} {'command':<9}{'median s':>9}{'best s':>8}{'peak MB':>9}  target")
+    print(f"load average {_load()}; interpreter + imports alone: {startup():.2f} s")
+    other = f"{'other s':>9}{'ratio':>7}{'cpu ratio':>10}" if args.against else ""
+    print(f"{'robots':>7} {'command':<9}{'median s':>9}{'best s':>8}{'cpu s':>7}{'peak MB':>9}{other}  target")
     for robots in args.robots:
         with tempfile.TemporaryDirectory(prefix="rosdeploy-vbench-") as tmp:
             fleet = build_project(Path(tmp), robots)
             for command in COMMANDS:
                 out = Path(args.render_out or tmp) / f"out-{robots}"
-                runs = [measure(fleet, command, out) for _ in range(args.runs)]
-                codes = {code for _, _, code in runs}
-                walls = [wall for wall, _, _ in runs]
-                peak = max(rss for _, rss, _ in runs)
-                median = statistics.median(walls)
+                for code in codes:   # warm-up: .pyc files written, the inventory in the page cache
+                    measure(fleet, command, out, code)
+                runs: dict[Path, list[Run]] = {code: [] for code in codes}
+                for _ in range(args.runs):
+                    for code in codes:
+                        runs[code].append(measure(fleet, command, out, code))
+                mine = runs[REPO]
+                exits = {run[2] for run in mine}
+                walls = [run[0] for run in mine]
+                peak = max(run[1] for run in mine)
+                median, cpu = statistics.median(walls), statistics.median(run[3] for run in mine)
                 seconds, megabytes = TARGETS.get(robots, (None, None))
                 ok = (seconds is None or median <= seconds) and (megabytes is None or peak < megabytes)
-                ok = ok and codes == {0}
+                ok = ok and exits == {0}
                 missed += not ok
                 goal = "" if seconds is None else f"<= {seconds} s" + (f", < {megabytes} MB" if megabytes else "")
-                verdict = "" if not goal else ("met" if ok else f"MISSED (exit {sorted(codes)})")
-                print(f"{robots:>7} {command:<9}{median:>9.2f}{min(walls):>8.2f}{peak:>9.0f}  {goal} {verdict}")
+                verdict = "" if not goal else ("met" if ok else f"MISSED (exit {sorted(exits)})")
+                compared = ""
+                if args.against:
+                    theirs = statistics.median(run[0] for run in runs[codes[1]])
+                    their_cpu = statistics.median(run[3] for run in runs[codes[1]])
+                    compared = f"{theirs:>9.2f}{median / theirs:>7.2f}{cpu / their_cpu:>10.2f}"
+                print(f"{robots:>7} {command:<9}{median:>9.2f}{min(walls):>8.2f}{cpu:>7.2f}{peak:>9.0f}{compared}  "
+                      f"{goal} {verdict}")
+    print(f"load average {_load()}")
     return 1 if missed else 0
+
+
+def _load() -> str:
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
 if __name__ == "__main__":

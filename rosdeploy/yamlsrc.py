@@ -102,7 +102,7 @@ def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | 
         raise InputError([Problem(path, None, "", "invalid YAML: nested too deeply")]) from exc
     if node is None:
         return Doc(path, None, {})
-    _check_expansion(node, path)
+    _check_expansion(node, path, text)
     lines: dict[KeyPath, int] = {}
     return Doc(path, _build(node, (), lines, path, _Constructor(), duplicates), lines)
 
@@ -116,7 +116,7 @@ def load_data(text: str, path: str = "<text>") -> Any:
         raise InputError([Problem(path, _error_line(exc, text), "", f"invalid YAML: {_error_text(exc)}")]) from exc
     if node is None:
         return None
-    _check_expansion(node, path)
+    _check_expansion(node, path, text)
     try:
         return _Constructor().construct_document(node)
     except (yaml.YAMLError, TypeError, ValueError) as exc:   # an unhashable key; an int of 4,300+ digits
@@ -180,12 +180,16 @@ def _check_depth(text: str) -> None:
             depth -= 1
 
 
-def _check_expansion(root: yaml.Node, path: str) -> None:
+def _check_expansion(root: yaml.Node, path: str, text: str) -> None:
     """Refuse a document whose aliases expand it beyond its budget, at the line that overflows.
 
     Each distinct node's expanded size is computed once (bottom-up, memoized), so a
     billion-laughs file is refused in microseconds and nothing is ever expanded.
+    A text without `*` has no alias (nor `<<: *merge`): every node is in the tree once, so it
+    is within its budget and cannot contain itself; the walk is skipped (0.1 s on 5,000 robots).
     """
+    if "*" not in text:
+        return
     sizes: dict[int, int] = {}
     order = _postorder(root, path)
     budget = max(MIN_BUDGET, MAX_EXPANSION * len(order))
