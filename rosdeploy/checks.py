@@ -391,7 +391,8 @@ def _dds_peers(ctx: Context, t: Target) -> Iterator[Problem]:
     try:
         peers = dds_peers(xml)
     except ET.ParseError as exc:
-        yield problem_at(ctx.spec, where, f"the {name} rendered for {ROBOTS} is not valid XML ({exc}): fix its template")
+        yield problem_at(ctx.spec, where,
+                         f"the {name} rendered for {ROBOTS} is not valid XML ({exc}): fix its template")
         return
     if not peers:
         yield problem_at(ctx.spec, where, (

@@ -72,7 +72,7 @@ class FileRenderer:
         return RobotFiles(tuple(out), mounts, frozenset(secrets))
 
     def _problem(self, host: Host, entry: RobotFile, message: str) -> Problem:
-        doc = Doc(self.spec.path, None, self.spec.lines)  # type: ignore[arg-type]
+        doc = Doc(self.spec.path, None, self.spec.lines)
         return doc.problem(("files", entry.name, entry.kind), f"robot {host.name!r}: {message}")
 
     def _content(self, entry: RobotFile, host: Host, scope: Mapping[str, Any], problems: list[Problem]) -> str | None:

@@ -27,7 +27,6 @@ from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, ImagePolicy, 
                              Service, Topic, frozen_map)
 from rosdeploy.yamlsrc import Doc, KeyPath
 
-BAD = object()            # what a converter returns after it reported a problem
 HEALTH_FROM_IMAGE = "image"
 
 # Names that reach compose project/service names, file names and shell commands.
@@ -42,7 +41,8 @@ ABSOLUTE_PATH_RE = re.compile(r"(/[A-Za-z0-9_.@+-]+)+/?")
 # mount of the user's may not land on or under them.
 MANAGED_MOUNTS = ("/fastdds.xml", "/cyclonedds.xml", "/dev/shm", "/ros_log")
 REMOTE_PATH_RE = re.compile(r"(~|~/[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*|(/[A-Za-z0-9_.-]+)+)/?")
-_DOMAIN = r"(?:localhost|[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?)*)(?::[0-9]{1,5})?"
+_DOMAIN = (r"(?:localhost|[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?)*)"
+           r"(?::[0-9]{1,5})?")
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
 REGISTRY_RE = re.compile(rf"{_DOMAIN}(?:/{_COMPONENT})*")
 REPOSITORY_RE = re.compile(rf"{_COMPONENT}(?:/{_COMPONENT})*")
@@ -59,7 +59,8 @@ RESERVED_ENV = frozenset({"ROS_DOMAIN_ID", "RMW_IMPLEMENTATION", "CYCLONEDDS_URI
 # compose keys rosdeploy renders from fleet keys; `compose:` may not override them.
 MANAGED_COMPOSE = {"image": "image/tag", "command": "command", "environment": "environment",
                    "env_file": "environment", "devices": "devices", "restart": "restart",
-                   "mem_limit": "resources.memory", "cpus": "resources.cpus", "deploy": "resources/gpu", "runtime": "gpu",
+                   "mem_limit": "resources.memory", "cpus": "resources.cpus", "deploy": "resources/gpu",
+                   "runtime": "gpu",
                    "healthcheck": "healthcheck", "depends_on": "depends_on", "user": "user",
                    "privileged": "privileged", "profiles": "profiles", "logging": "logging (top level)",
                    "network_mode": "ros.network_mode", "networks": "ros.network_mode", "shm_size": "ros.shm_size",
@@ -123,23 +124,78 @@ def _kind(value: Any) -> str:
 
 # ------------------------------------------------------------------ reader
 
+class Invalid(Exception):
+    """A converter's verdict: this value cannot be used (the one way a converter refuses).
+
+    `message` is reported at the value's key path, or at `at` below it; an Invalid without a
+    message means the problems inside the value were reported already (a list whose items failed).
+    """
+
+    def __init__(self, message: str = "", at: KeyPath = ()) -> None:
+        super().__init__(message)
+        self.message = message
+        self.at = at
+
+
 class Reader:
-    """Walks one fleet Doc and collects problems instead of stopping at the first."""
+    """Walks one fleet Doc and collects problems instead of stopping at the first.
+
+    Converters raise Invalid; `take` records it and leaves the value out of the converted data,
+    and remembers its key path (`refused`), so a check across keys can tell a key that is
+    missing from one whose value was refused (and already reported).
+    """
 
     def __init__(self, doc: Doc) -> None:
         self.doc = doc
         self.base = Path(doc.path).parent
         self.problems: list[Problem] = []
+        self.refused: set[KeyPath] = set()
         self._reported: set[KeyPath] = set()
         self._poisoned: set[KeyPath] = set()   # values holding control characters
 
-    def error(self, kp: KeyPath, message: str) -> object:
-        """Record one problem per key path; returns BAD so converters can `return r.error(...)`."""
+    def error(self, kp: KeyPath, message: str) -> None:
+        """Record one problem per key path (none under a value already refused for control characters)."""
         if kp in self._reported or any(kp[:n] in self._poisoned for n in range(len(kp) + 1)):
-            return BAD
+            return
         self._reported.add(kp)
         self.problems.append(self.doc.problem(kp, message))
-        return BAD
+
+    def take(self, convert: Convert, kp: KeyPath, value: Any, out: dict, key: Any) -> None:
+        """out[key] = the converted value; if the converter refuses it, its problem is recorded instead."""
+        try:
+            out[key] = convert(self, kp, value)
+        except Invalid as exc:
+            if exc.message:
+                self.error(kp + exc.at, exc.message)
+            self.refused.add(kp)
+
+    def refused_in(self, kp: KeyPath) -> bool:
+        """Was a value directly inside kp refused?"""
+        return any(len(r) == len(kp) + 1 and r[:len(kp)] == kp for r in self.refused)
+
+    def names(self, kp: KeyPath, converted: Any) -> list[str]:
+        """The keys of the mapping at kp that were converted or refused, in the file's order: every
+        name the file declares there (a bad key name is neither)."""
+        raw = self.raw(kp)
+        done = converted if isinstance(converted, dict) else {}
+        return [k for k in (raw if isinstance(raw, dict) else ()) if k in done or kp + (k,) in self.refused]
+
+    def items(self, kp: KeyPath) -> list[tuple[int, Any]]:
+        """(index, value) of the list at kp as written, without the items a converter refused."""
+        raw = self.raw(kp)
+        return [(i, v) for i, v in enumerate(raw if isinstance(raw, list) else ()) if kp + (i,) not in self.refused]
+
+    def raw(self, kp: KeyPath) -> Any:
+        """The value at kp as the file wrote it (None where there is none)."""
+        value = self.doc.data
+        for key in kp:
+            if isinstance(value, dict):
+                value = value.get(key)
+            elif isinstance(value, list) and isinstance(key, int) and 0 <= key < len(value):
+                value = value[key]
+            else:
+                return None
+        return value
 
     def scan_control_chars(self, value: Any, kp: KeyPath = ()) -> None:
         """Newlines and NULs would split a .env line, a YAML scalar or a shell word: refuse them anywhere."""
@@ -176,14 +232,14 @@ class Reader:
     def local_path(self, kp: KeyPath, value: Any, base: Path | None = None) -> Any:
         """A path on this machine: ~ and $VARS expanded, relative to the fleet file's folder."""
         if not isinstance(value, str) or not value.strip():
-            return self.error(kp, f"must be a path (a string); got {_kind(value)}")
+            raise Invalid(f"must be a path (a string); got {_kind(value)}")
         if _SECRET_ENV_REF.search(value):
-            return self.error(kp, "a path may not use the vault password variables: they are secrets")
+            raise Invalid("a path may not use the vault password variables: they are secrets")
         expanded = os.path.expandvars(value)
         unset = re.search(r"\$\{?([A-Za-z_][A-Za-z0-9_]*)", expanded)
         if unset:
-            return self.error(kp, f"environment variable ${unset.group(1)} is not set: export it, "
-                                  "or write the path without it")
+            raise Invalid(f"environment variable ${unset.group(1)} is not set: export it, "
+                          "or write the path without it")
         # Absolute, so later stages (the renderer, remote commands) need not know where the fleet file was.
         return os.path.abspath((base or self.base) / Path(expanded).expanduser())
 
@@ -194,12 +250,16 @@ def _section(schema: Mapping[str, Convert], required: tuple[str, ...] = ()) -> C
     """A mapping with a fixed set of keys; returns {key: converted value} for the keys present."""
     def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
         if not isinstance(value, dict):
-            return r.error(kp, f"must be a mapping with the keys {', '.join(schema)}; got {_kind(value)}")
+            raise Invalid(f"must be a mapping with the keys {', '.join(schema)}; got {_kind(value)}")
         suggested = r.unknown_keys(kp, value, schema)
         for key in required:
             if key not in value and key not in suggested:
                 r.error(kp + (key,), f"required key missing: add `{key}:` here")
-        return {key: conv(r, kp + (key,), value[key]) for key, conv in schema.items() if key in value}
+        out: dict[str, Any] = {}
+        for key, conv in schema.items():
+            if key in value:
+                r.take(conv, kp + (key,), value[key], out, key)
+        return out
     return convert
 
 
@@ -207,13 +267,13 @@ def _named(key_re: re.Pattern, what: str, item: Convert) -> Convert:
     """A mapping whose keys the user names (services, environment, vars)."""
     def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
         if not isinstance(value, dict):
-            return r.error(kp, f"must be a mapping of {what} names to values; got {_kind(value)}")
-        out = {}
+            raise Invalid(f"must be a mapping of {what} names to values; got {_kind(value)}")
+        out: dict[str, Any] = {}
         for key, sub in value.items():
             if not isinstance(key, str) or not key_re.fullmatch(key):
                 r.error(kp + (key,), f"`{key}` is not a valid {what} name: use {_pattern_hint(key_re)}")
             else:
-                out[key] = item(r, kp + (key,), sub)
+                r.take(item, kp + (key,), sub, out, key)
         return out
     return convert
 
@@ -236,9 +296,9 @@ def _string(pattern: re.Pattern | None = None, what: str = "") -> Convert:
     def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
         if not isinstance(value, str):
             hint = f'; quote it: "{value}"' if isinstance(value, (int, float)) and not isinstance(value, bool) else ""
-            return r.error(kp, f"must be a string; got {_kind(value)}{hint}")
+            raise Invalid(f"must be a string; got {_kind(value)}{hint}")
         if pattern is not None and not pattern.fullmatch(value):
-            return r.error(kp, f"{value!r} is not a valid {what}: use {_pattern_hint(pattern)}")
+            raise Invalid(f"{value!r} is not a valid {what}: use {_pattern_hint(pattern)}")
         return value
     return convert
 
@@ -249,12 +309,12 @@ def _text(r: Reader, kp: KeyPath, value: Any) -> Any:
         return str(value).lower()
     if isinstance(value, (str, int, float)):
         return str(value)
-    return r.error(kp, f"must be a string, number or true/false; got {_kind(value)}")
+    raise Invalid(f"must be a string, number or true/false; got {_kind(value)}")
 
 
 def _boolean(r: Reader, kp: KeyPath, value: Any) -> Any:
     if not isinstance(value, bool):
-        return r.error(kp, f"must be true or false; got {_kind(value)}")
+        raise Invalid(f"must be true or false; got {_kind(value)}")
     return value
 
 
@@ -262,15 +322,15 @@ def _integer(low: int, high: int | None = None) -> Convert:
     def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
         if isinstance(value, bool) or not isinstance(value, int) or value < low or (high is not None and value > high):
             top = f" and {high}" if high is not None else ""
-            return r.error(kp, f"must be a whole number {'between ' + str(low) + top if top else '>= ' + str(low)}; "
-                               f"got {_kind(value)}")
+            raise Invalid(f"must be a whole number {'between ' + str(low) + top if top else '>= ' + str(low)}; "
+                          f"got {_kind(value)}")
         return value
     return convert
 
 
 def _positive(r: Reader, kp: KeyPath, value: Any) -> Any:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or value <= 0:
-        return r.error(kp, f"must be a number above 0; got {_kind(value)}")
+        raise Invalid(f"must be a number above 0; got {_kind(value)}")
     return float(value)
 
 
@@ -278,19 +338,19 @@ def _duration(r: Reader, kp: KeyPath, value: Any) -> Any:
     try:
         return parse_duration(value)
     except ValueError:
-        return r.error(kp, f"must be a duration like 90, 90s, 2m or 1m30s; got {_kind(value)}")
+        raise Invalid(f"must be a duration like 90, 90s, 2m or 1m30s; got {_kind(value)}") from None
 
 
 def _size(r: Reader, kp: KeyPath, value: Any) -> Any:
     if not isinstance(value, str) or not _SIZE_RE.fullmatch(value.strip()):
-        return r.error(kp, f"must be a size with a unit like 512m or 1g; got {_kind(value)}")
+        raise Invalid(f"must be a size with a unit like 512m or 1g; got {_kind(value)}")
     return value.strip().lower()
 
 
 def _enum(*choices: str) -> Convert:
     def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
         if value not in choices:
-            return r.error(kp, f"must be one of {', '.join(choices)}; got {_kind(value)}")
+            raise Invalid(f"must be one of {', '.join(choices)}; got {_kind(value)}")
         return value
     return convert
 
@@ -298,12 +358,16 @@ def _enum(*choices: str) -> Convert:
 def _listof(item: Convert, what: str) -> Convert:
     def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
         if not isinstance(value, list):
-            return r.error(kp, f"must be a list of {what}; got {_kind(value)}")
-        out = [item(r, kp + (i,), v) for i, v in enumerate(value)]
+            raise Invalid(f"must be a list of {what}; got {_kind(value)}")
+        out: dict[int, Any] = {}
+        for i, v in enumerate(value):
+            r.take(item, kp + (i,), v, out, i)
         for i, v in enumerate(value):
             if isinstance(v, (str, int)) and value.index(v) < i:
                 r.error(kp + (i,), f"{v!r} is listed twice; keep one")
-        return tuple(out)
+        if len(out) < len(value):
+            raise Invalid()   # its items' problems are reported; Reader.items reads the others
+        return tuple(out[i] for i in range(len(value)))
     return convert
 
 
@@ -311,48 +375,43 @@ def _listof(item: Convert, what: str) -> Convert:
 
 def _tag(r: Reader, kp: KeyPath, value: Any) -> Any:
     value = _string()(r, kp, value)
-    if value is BAD:
-        return BAD
     if not value.strip() or value.strip().lower() == "latest":
-        return r.error(kp, f"{value!r} is not a release version: every deploy needs an explicit tag that "
-                           'can be rolled back to, e.g. "1.4.2" or "1.4.2-3f9a2c1" (version and commit)')
+        raise Invalid(f"{value!r} is not a release version: every deploy needs an explicit tag that "
+                      'can be rolled back to, e.g. "1.4.2" or "1.4.2-3f9a2c1" (version and commit)')
     if not TAG_RE.fullmatch(value):
-        return r.error(kp, f"{value!r} is not a valid image tag: use letters, digits, `_`, `.` and `-` "
-                           "(at most 128, not starting with `.` or `-`)")
+        raise Invalid(f"{value!r} is not a valid image tag: use letters, digits, `_`, `.` and `-` "
+                      "(at most 128, not starting with `.` or `-`)")
     return value
 
 
 def _registry(r: Reader, kp: KeyPath, value: Any) -> Any:
     value = _string()(r, kp, value)
-    if value is not BAD and not REGISTRY_RE.fullmatch(value):
-        return r.error(kp, f"{value!r} is not a registry: write host[:port][/path], e.g. registry.local:5000, "
-                           "without a scheme (no https://)")
+    if not REGISTRY_RE.fullmatch(value):
+        raise Invalid(f"{value!r} is not a registry: write host[:port][/path], e.g. registry.local:5000, "
+                      "without a scheme (no https://)")
     return value
 
 
 def _image(r: Reader, kp: KeyPath, value: Any) -> Any:
     """A repository without tag; its registry host is checked against `registry` later."""
     value = _string()(r, kp, value)
-    if value is BAD:
-        return BAD
     if "@" in value:
         value, _, digest = value.partition("@")
         if not DIGEST_RE.fullmatch(digest):
-            return r.error(kp, f"{digest!r} is not an image digest: write repo@sha256:<64 hex digits>, or "
-                               "give the repository only and pin the version with `tag:`")
-        checked = _image(r, kp, value)
-        return BAD if checked is BAD else f"{checked}@{digest}"
+            raise Invalid(f"{digest!r} is not an image digest: write repo@sha256:<64 hex digits>, or "
+                          "give the repository only and pin the version with `tag:`")
+        return f"{_image(r, kp, value)}@{digest}"
     last = value.rsplit("/", 1)[-1]
     if ":" in last:
         repo, tag = value.rsplit(":", 1)
-        return r.error(kp, f"`image:` must not carry a tag (`:{tag}`): the release `version` is every image's "
-                           f"tag; write `image: {repo}` and, to pin this service, `tag: \"{tag}\"`")
+        raise Invalid(f"`image:` must not carry a tag (`:{tag}`): the release `version` is every image's "
+                      f"tag; write `image: {repo}` and, to pin this service, `tag: \"{tag}\"`")
     host, _, rest = value.partition("/")
     if _has_registry_host(value) and REGISTRY_RE.fullmatch(host) and REPOSITORY_RE.fullmatch(rest):
         return value
     if not REPOSITORY_RE.fullmatch(value):
-        return r.error(kp, f"{value!r} is not a valid image repository: use lower-case path components "
-                           "(letters, digits, `.`, `_`, `-`) separated by `/`, e.g. acme/amr-driver")
+        raise Invalid(f"{value!r} is not a valid image repository: use lower-case path components "
+                      "(letters, digits, `.`, `_`, `-`) separated by `/`, e.g. acme/amr-driver")
     return value
 
 
@@ -360,14 +419,14 @@ def _rate(r: Reader, kp: KeyPath, value: Any) -> Any:
     try:
         return parse_rate(value)
     except ValueError:
-        return r.error(kp, f"{value!r} is not a rate: write bytes per second, e.g. 2MB/s or 500kB/s")
+        raise Invalid(f"{value!r} is not a rate: write bytes per second, e.g. 2MB/s or 500kB/s") from None
 
 
 def _controller_registry(r: Reader, kp: KeyPath, value: Any) -> Any:
     value = _string()(r, kp, value)
-    if value is not BAD and not REGISTRY_RE.fullmatch(value.split("://", 1)[-1]):
-        return r.error(kp, f"{value!r} is not a registry address: write host[:port], optionally after "
-                           "http:// or https://, e.g. http://127.0.0.1:5000")
+    if not REGISTRY_RE.fullmatch(value.split("://", 1)[-1]):
+        raise Invalid(f"{value!r} is not a registry address: write host[:port], optionally after "
+                      "http:// or https://, e.g. http://127.0.0.1:5000")
     return value
 
 
@@ -382,23 +441,27 @@ def _command(r: Reader, kp: KeyPath, value: Any) -> Any:
         try:
             value = shlex.split(value)
         except ValueError as exc:
-            return r.error(kp, f"cannot split the command into words ({exc}): write it as a list, "
-                               "e.g. [ros2, launch, amr_driver, driver.launch.py]")
+            raise Invalid(f"cannot split the command into words ({exc}): write it as a list, "
+                          "e.g. [ros2, launch, amr_driver, driver.launch.py]") from None
     if not isinstance(value, list) or not value:
-        return r.error(kp, f"must be a non-empty list of words; got {_kind(value)}")
-    words = [_text(r, kp + (i,), word) for i, word in enumerate(value)]
-    return BAD if BAD in words else tuple(words)
+        raise Invalid(f"must be a non-empty list of words; got {_kind(value)}")
+    words: dict[int, str] = {}
+    for i, word in enumerate(value):
+        r.take(_text, kp + (i,), word, words, i)
+    if len(words) < len(value):
+        raise Invalid()
+    return tuple(words[i] for i in range(len(value)))
 
 
 def _healthcheck(r: Reader, kp: KeyPath, value: Any) -> Any:
     if value == HEALTH_FROM_IMAGE:
         return HEALTH_FROM_IMAGE
     if not isinstance(value, dict):
-        return r.error(kp, f"must be a mapping (test, interval, timeout, retries, start_period) or `image` "
-                           f"to trust the image's own HEALTHCHECK; got {_kind(value)}")
+        raise Invalid(f"must be a mapping (test, interval, timeout, retries, start_period) or `image` "
+                      f"to trust the image's own HEALTHCHECK; got {_kind(value)}")
     d = _section(_HEALTHCHECK, required=("test",))(r, kp, value)
-    if BAD in d.values() or "test" not in d:
-        return BAD
+    if r.refused_in(kp) or "test" not in d:
+        raise Invalid()
     times = {k: compose_duration(d[k]) for k in ("interval", "timeout", "start_period") if k in d}
     return HealthCheck(test=d["test"], retries=d.get("retries", 3), **times)
 
@@ -406,11 +469,13 @@ def _healthcheck(r: Reader, kp: KeyPath, value: Any) -> Any:
 def _health_test(r: Reader, kp: KeyPath, value: Any) -> Any:
     """[CMD, ...] / [CMD-SHELL, "..."] as compose takes it; a plain string is CMD-SHELL."""
     if isinstance(value, str):
-        return ("CMD-SHELL", value) if value.strip() else r.error(kp, "is empty: give the command to run")
+        if not value.strip():
+            raise Invalid("is empty: give the command to run")
+        return ("CMD-SHELL", value)
     words = _command(r, kp, value)
-    if words is not BAD and (words[0] not in ("CMD", "CMD-SHELL") or len(words) < 2):
-        return r.error(kp, 'must start with CMD or CMD-SHELL and then the command, e.g. '
-                           '[CMD-SHELL, "ros2 topic list | grep -q /joint_states"]')
+    if words[0] not in ("CMD", "CMD-SHELL") or len(words) < 2:
+        raise Invalid('must start with CMD or CMD-SHELL and then the command, e.g. '
+                      '[CMD-SHELL, "ros2 topic list | grep -q /joint_states"]')
     return words
 
 
@@ -418,8 +483,8 @@ def _topic(r: Reader, kp: KeyPath, value: Any) -> Any:
     if isinstance(value, str):
         value = {"name": value}
     d = _section(_TOPIC, required=("name",))(r, kp, value)
-    if d is BAD or BAD in d.values() or "name" not in d:
-        return BAD
+    if r.refused_in(kp) or "name" not in d:
+        raise Invalid()
     return Topic(name=d["name"], min_rate=d.get("min_rate"))
 
 
@@ -429,7 +494,7 @@ def _wave(r: Reader, kp: KeyPath, value: Any) -> Any:
         return value
     if isinstance(value, str) and re.fullmatch(r"[0-9]{1,3}%", value) and 0 < int(value[:-1]) <= 100:
         return value
-    return r.error(kp, f'must be a robot count (1, 5) or a percentage of the targets ("10%"); got {_kind(value)}')
+    raise Invalid(f'must be a robot count (1, 5) or a percentage of the targets ("10%"); got {_kind(value)}')
 
 
 def _max_fail(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -440,8 +505,8 @@ def _max_fail(r: Reader, kp: KeyPath, value: Any) -> Any:
 
 def _restart(r: Reader, kp: KeyPath, value: Any) -> Any:
     if value is False or value == "no":   # YAML reads a bare `no` as false
-        return r.error(kp, "`no` would leave the service down after a crash or reboot: use unless-stopped "
-                           "(services) or always (critical drivers and watchdogs)")
+        raise Invalid("`no` would leave the service down after a crash or reboot: use unless-stopped "
+                      "(services) or always (critical drivers and watchdogs)")
     return _enum("always", "unless-stopped", "on-failure")(r, kp, value)
 
 
@@ -452,23 +517,23 @@ def _order_by(r: Reader, kp: KeyPath, value: Any) -> Any:
 def _mount(r: Reader, kp: KeyPath, value: Any) -> Any:
     """A bind mount "/robot/path:/container/path[:ro|rw]", normalized to always carry its mode."""
     if not isinstance(value, str):
-        return r.error(kp, f'must be a string like "/opt/maps:/maps:ro"; got {_kind(value)}')
+        raise Invalid(f'must be a string like "/opt/maps:/maps:ro"; got {_kind(value)}')
     parts = value.split(":")
     mode = parts.pop() if len(parts) == 3 and parts[2] in ("ro", "rw") else "rw"
     if len(parts) != 2 or not all(ABSOLUTE_PATH_RE.fullmatch(p) and ".." not in p.split("/") for p in parts):
-        return r.error(kp, f"{value!r} is not a bind mount: use /path/on/robot:/path/in/container, optionally "
-                           f"followed by :ro or :rw; both paths absolute, letters, digits and ._@+- only")
+        raise Invalid(f"{value!r} is not a bind mount: use /path/on/robot:/path/in/container, optionally "
+                      f"followed by :ro or :rw; both paths absolute, letters, digits and ._@+- only")
     source, target = (p.rstrip("/") or "/" for p in parts)
     taken = next((m for m in MANAGED_MOUNTS if target == m or target.startswith(m + "/")), None)
     if taken:
-        return r.error(kp, f"{target} is where rosdeploy mounts {taken} itself: choose another container path")
+        raise Invalid(f"{target} is where rosdeploy mounts {taken} itself: choose another container path")
     return f"{source}:{target}:{mode}"
 
 
 def _compose_extra(r: Reader, kp: KeyPath, value: Any) -> Any:
     """Compose keys passed through verbatim (cap_add, ulimits, ...), except those rosdeploy renders."""
     if not isinstance(value, dict):
-        return r.error(kp, f"must be a mapping of compose service keys, e.g. {{cap_add: [SYS_NICE]}}; got {_kind(value)}")
+        raise Invalid(f"must be a mapping of compose service keys, e.g. {{cap_add: [SYS_NICE]}}; got {_kind(value)}")
     for key in value:
         if key in MANAGED_COMPOSE:
             r.error(kp + (key,), f"`{key}` is rendered by rosdeploy: set it with the fleet key "
@@ -485,26 +550,26 @@ COMPOSE_SCHEMA = Path(__file__).parent / "schemas" / "compose_spec.json"   # see
 def _memory(r: Reader, kp: KeyPath, value: Any) -> Any:
     """A memory limit: a size Docker accepts (`0m` would be refused on the robot, mid-deploy)."""
     value = _size(r, kp, value)
-    if value is not BAD and size_bytes(value) < DOCKER_MIN_MEMORY:
-        return r.error(kp, f"{value!r} is below Docker's minimum memory limit of 6m: give the service "
-                           "what it needs, e.g. 256m")
+    if size_bytes(value) < DOCKER_MIN_MEMORY:
+        raise Invalid(f"{value!r} is below Docker's minimum memory limit of 6m: give the service "
+                      "what it needs, e.g. 256m")
     return value
 
 
 def _cpus(r: Reader, kp: KeyPath, value: Any) -> Any:
     """A CPU limit: a finite number above 0 (`.inf` would be written as `inf` for compose)."""
     value = _positive(r, kp, value)
-    if value is not BAD and not math.isfinite(value):
-        return r.error(kp, f"must be a finite number of CPUs, e.g. 1.5; got {value}")
+    if not math.isfinite(value):
+        raise Invalid(f"must be a finite number of CPUs, e.g. 1.5; got {value}")
     return value
 
 
 def _deploy_root(r: Reader, kp: KeyPath, value: Any) -> Any:
     """deploy_root: the remote-path pattern (no shell metacharacters), and no `..` anywhere."""
     value = _string(REMOTE_PATH_RE, "path on the robot (absolute or under ~)")(r, kp, value)
-    if value is not BAD and ".." in value.split("/"):
-        return r.error(kp, f"{value!r} contains `..`: releases would land outside the folder it names; "
-                           "write the folder itself, e.g. ~/rosdeploy or /opt/rosdeploy")
+    if ".." in value.split("/"):
+        raise Invalid(f"{value!r} contains `..`: releases would land outside the folder it names; "
+                      "write the folder itself, e.g. ~/rosdeploy or /opt/rosdeploy")
     return value
 
 
@@ -620,8 +685,8 @@ def load_fleet(path: str | Path, *, inventory: str | None = None, version: str |
         raise FleetSpecError(exc.problems) from exc
     r = Reader(doc)
     if not isinstance(doc.data, dict):
-        raise FleetSpecError([doc.problem((), "the fleet file must be a mapping with at least project, "
-                                              "inventory, registry, version and services (see the README (The fleet file))")])
+        raise FleetSpecError([doc.problem((), "the fleet file must be a mapping with at least project, inventory, "
+                                              "registry, version and services (see the README (The fleet file))")])
     r.scan_control_chars(doc.data)
     required = ("project", "services") + (() if inventory else ("inventory",)) + (() if version else ("version",))
     top = _section(TOP, required=required)(r, (), doc.data)
@@ -629,7 +694,7 @@ def load_fleet(path: str | Path, *, inventory: str | None = None, version: str |
     top.update(_overrides(r, inventory, version))
     _check_services(r, top)
     if isinstance(top.get("ready"), readiness.ReadyPolicy) and isinstance(top.get("services"), dict):
-        readiness.check_services(top["ready"], top["services"], r, ("ready",))
+        readiness.check_services(top["ready"], dict.fromkeys(r.names(("services",), top["services"])), r, ("ready",))
     if r.problems:
         raise FleetSpecError(sorted(r.problems, key=lambda p: (p.file != doc.path, p.line or 0)))
     return _build(doc, top)
@@ -644,7 +709,7 @@ def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[st
             r.problems.append(Problem("--inventory", None, "", f"{inventory} does not exist: fix the -i path"))
     if version is not None:
         cli = Reader(Doc("--version", None))
-        out["version"] = _tag(cli, ("version",), version)
+        cli.take(_tag, ("version",), version, out, "version")
         r.problems.extend(cli.problems)
     return out
 
@@ -678,36 +743,35 @@ def _check_services(r: Reader, top: dict) -> None:
     services = top.get("services")
     if not isinstance(services, dict):
         return
-    if not services and "services" in r.doc.data:
+    names = r.names(("services",), services)   # a service whose value was refused is still declared
+    if not names and "services" in r.doc.data:
         r.error(("services",), "declares no service: add at least one, e.g. `driver: {image: acme/amr-driver}`")
     for name, svc in services.items():
-        if isinstance(svc, dict):
-            _check_service(r, ("services", name), svc, services, top.get("registry"))
+        _check_service(r, ("services", name), svc, names, top.get("registry"))
     probe = top.get("health", {}).get("probe_service") if isinstance(top.get("health"), dict) else None
-    if isinstance(probe, str) and probe not in services:
-        r.error(("health", "probe_service"), f"no service is named `{probe}`{_did_you_mean(probe, services)}")
+    if isinstance(probe, str) and probe not in names:
+        r.error(("health", "probe_service"), f"no service is named `{probe}`{_did_you_mean(probe, names)}")
     _check_cycles(r, services)
     _check_file_refs(r, services, top.get("files"))
 
 
-def _check_service(r: Reader, kp: KeyPath, svc: dict, services: dict, registry: Any) -> None:
+def _check_service(r: Reader, kp: KeyPath, svc: dict, names: list[str], registry: Any) -> None:
     _check_image_registry(r, kp + ("image",), svc.get("image"), registry)
-    env, secrets = svc.get("environment"), svc.get("secrets")
-    for name in (env if isinstance(env, dict) else {}):
+    env = r.names(kp + ("environment",), svc.get("environment"))
+    for name in env:
         if name in RESERVED_ENV:
             r.error(kp + ("environment", name), f"{name} is set per robot by rosdeploy (from the inventory and "
                                                 "`ros:`); remove it here")
-    for name in (secrets if isinstance(secrets, dict) else {}):
-        if isinstance(env, dict) and name in env:
+    for name in r.names(kp + ("secrets",), svc.get("secrets")):
+        if name in env:
             r.error(kp + ("secrets", name), f"{name} is also in `environment`: keep it in one of the two")
-    for i, dep in enumerate(_deps(svc)):
-        _check_dependency(r, kp + ("depends_on", i), kp[-1], dep, services)
+    for i, dep in _deps(r, kp[-1]):
+        _check_dependency(r, kp + ("depends_on", i), kp[-1], dep, names, r.raw(("services", dep)))
 
 
-def _deps(svc: Any) -> tuple:
-    """A converted service's depends_on, or () when the service or the list itself was invalid."""
-    deps = svc.get("depends_on") if isinstance(svc, dict) else None
-    return deps if isinstance(deps, tuple) else ()
+def _deps(r: Reader, service: str) -> list[tuple[int, str]]:
+    """(index, name) of a service's depends_on entries that are valid names."""
+    return [(i, dep) for i, dep in r.items(("services", service, "depends_on")) if isinstance(dep, str)]
 
 
 def _check_image_registry(r: Reader, kp: KeyPath, image: Any, registry: Any) -> None:
@@ -722,20 +786,19 @@ def _check_image_registry(r: Reader, kp: KeyPath, image: Any, registry: Any) -> 
                     f"`registry: registry.local:5000`, or write the full ref, e.g. docker.io/{image}")
 
 
-def _check_dependency(r: Reader, kp: KeyPath, name: str, dep: Any, services: dict) -> None:
-    if not isinstance(dep, str) or dep is BAD:
-        return
+def _check_dependency(r: Reader, kp: KeyPath, name: str, dep: str, names: list[str], written: Any) -> None:
+    """`written`: the depended-on service as the file has it (its healthcheck may have been refused)."""
     if dep == name:
         r.error(kp, f"`{name}` cannot depend on itself; remove it from depends_on")
-    elif dep not in services:
-        r.error(kp, f"no service is named `{dep}`{_did_you_mean(dep, services)}")
-    elif isinstance(services[dep], dict) and "healthcheck" not in services[dep]:
+    elif dep not in names:
+        r.error(kp, f"no service is named `{dep}`{_did_you_mean(dep, names)}")
+    elif isinstance(written, dict) and "healthcheck" not in written:
         r.error(kp, f"`{dep}` has no healthcheck, so it never becomes healthy and `{name}` (which waits for "
                     f"service_healthy) would never start: give `{dep}` a healthcheck (or `healthcheck: image`)")
 
 
 def _check_cycles(r: Reader, services: dict) -> None:
-    graph = {n: [d for d in _deps(s) if d in services and d != n] for n, s in services.items()}
+    graph = {n: [d for _, d in _deps(r, n) if d in services and d != n] for n in services}
     state: dict[str, int] = {}
 
     def visit(node: str, trail: list[str]) -> None:
@@ -784,7 +847,7 @@ def _build(doc: Doc, top: dict) -> FleetSpec:
         ssh_persist=ssh.get("persist", 60.0),
         min_free_disk_mb=top.get("preflight", {}).get("min_free_disk_mb", 1024),
         health=HealthPolicy(**health),
-        rollout=RolloutPolicy(**{k: tuple(v) if k == "waves" else v for k, v in rollout.items()}),
+        rollout=RolloutPolicy(**rollout),   # waves: a tuple already (_listof)
         rollback=RollbackPolicy(**rollback),
         images=ImagePolicy(**top.get("images", {})),
         vars=frozen_map(top.get("vars")),
@@ -821,40 +884,42 @@ def _robot_file(r: Reader, kp: KeyPath, value: Any) -> Any:
     """`files: {NAME: {template|copy|var: SOURCE, target: /in/container, secret: bool}}`."""
     d = _section({**{k: _string() for k in FILE_KINDS}, "target": _string(), "secret": _boolean},
                  required=("target",))(r, kp, value)
-    if d is BAD or BAD in d.values():
-        return BAD
+    if r.refused_in(kp):
+        raise Invalid()
     kinds = [k for k in FILE_KINDS if k in d]
     if len(kinds) != 1:
-        return r.error(kp, "give exactly one source: `template:` (a Jinja2 file), `copy:` (a file copied as is) "
-                           "or `var:` (an inventory variable, e.g. calibration in host_vars)")
+        raise Invalid("give exactly one source: `template:` (a Jinja2 file), `copy:` (a file copied as is) "
+                      "or `var:` (an inventory variable, e.g. calibration in host_vars)")
     kind, source = kinds[0], d[kinds[0]]
     if kind == "var" and not ENV_RE.fullmatch(source):
-        return r.error(kp + (kind,), f"{source!r} is not an inventory variable name: use {_pattern_hint(ENV_RE)}")
+        raise Invalid(f"{source!r} is not an inventory variable name: use {_pattern_hint(ENV_RE)}", (kind,))
     if kind != "var" and (source.startswith(("/", "~")) or ".." in source.split("/")
                           or not _FILE_SOURCE_RE.fullmatch(source)):
-        return r.error(kp + (kind,), f"{source!r} must be a path inside the fleet repo, relative to the fleet "
-                                     "file, without `..` (e.g. params/{{ inventory_hostname }}.yaml)")
+        raise Invalid(f"{source!r} must be a path inside the fleet repo, relative to the fleet "
+                      "file, without `..` (e.g. params/{{ inventory_hostname }}.yaml)", (kind,))
+    if "target" not in d:   # reported as missing (or a key near it suggested)
+        raise Invalid()
     target = d["target"]
     if not ABSOLUTE_PATH_RE.fullmatch(target) or ".." in target.split("/") or target.endswith("/"):
-        return r.error(kp + ("target",), f"{target!r} must be an absolute file path in the container, "
-                                         "e.g. /config/params.yaml")
+        raise Invalid(f"{target!r} must be an absolute file path in the container, "
+                      "e.g. /config/params.yaml", ("target",))
     taken = next((m for m in MANAGED_MOUNTS if target == m or target.startswith(m + "/")), None)
     if taken:
-        return r.error(kp + ("target",), f"{target} is where rosdeploy mounts {taken} itself: choose another path")
+        raise Invalid(f"{target} is where rosdeploy mounts {taken} itself: choose another path", ("target",))
     return {"kind": kind, "source": source, "target": target, "secret": d.get("secret", False)}
 
 
 def _check_file_refs(r: Reader, services: dict, files: Any) -> None:
     known = files if isinstance(files, dict) else {}
-    for name, svc in services.items():
-        listed = svc.get("files") if isinstance(svc, dict) else None
+    declared = r.names(("files",), known) if isinstance(files, dict) else []
+    for name in services:
         targets: dict[str, str] = {}
-        for i, ref in enumerate(listed if isinstance(listed, tuple) else ()):
-            if ref not in known:
+        for i, ref in r.items(("services", name, "files")):
+            if ref not in declared:
                 from rosdeploy.suggest import did_you_mean
-                hint = did_you_mean(ref, known) or "add it there, or fix the name"
+                hint = did_you_mean(ref, declared) or "add it there, or fix the name"
                 r.error(("services", name, "files", i), f"no file is named `{ref}` in the top-level `files:`: {hint}")
-            elif isinstance(known[ref], dict):
+            elif isinstance(known.get(ref), dict):
                 target = known[ref]["target"]
                 if target in targets:
                     r.error(("services", name, "files", i), f"`{ref}` and `{targets[target]}` both mount at {target}")

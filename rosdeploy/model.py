@@ -12,10 +12,13 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any, Mapping, TypeVar
+
+K = TypeVar("K")
+V = TypeVar("V")
 
 
-def frozen_map(data: Mapping[str, Any] | None = None) -> Mapping[str, Any]:
+def frozen_map(data: Mapping[K, V] | None = None) -> Mapping[K, V]:
     return MappingProxyType(dict(data or {}))
 
 

@@ -119,7 +119,7 @@ def convert(r: Any, kp: tuple, value: Any) -> ReadyPolicy | bool | None:
         r.error(kp + ("when",), "required: a list of conditions, e.g. `- {topic: /robot_mode, field: data, is: IDLE}`")
         return None
     conditions = tuple(_condition(r, kp + ("when", i), c) for i, c in enumerate(when))
-    if len(r.problems) > before:
+    if len(r.problems) > before or None in conditions:   # None: refused, its problem maybe shown elsewhere
         return None
     return ReadyPolicy(conditions, **times)   # type: ignore[arg-type]
 

@@ -180,7 +180,8 @@ def comment(value: Any) -> str:
 
 
 FILTERS = {
-    "yaml_str": yaml_str, "yaml_key": yaml_key, "compose_str": compose_str, "compose_list": compose_list, "env_ref": env_ref,
+    "yaml_str": yaml_str, "yaml_key": yaml_key, "compose_str": compose_str, "compose_list": compose_list,
+    "env_ref": env_ref,
     "xml": xml, "env_value": env_value, "udev_value": udev_value, "logrotate_path": logrotate_path,
     "comment": comment,
 }
@@ -336,7 +337,7 @@ class Renderer:
 
     def _problem(self, keypath: tuple[Any, ...], message: str) -> Problem:
         """A problem in the fleet file, at the line of the key when the loader recorded it."""
-        return Doc(self.spec.path, None, self.spec.lines).problem(keypath, message)  # type: ignore[arg-type]
+        return Doc(self.spec.path, None, self.spec.lines).problem(keypath, message)
 
     def _override_dir(self) -> Path | None:
         if not self.spec.templates:
@@ -352,7 +353,8 @@ class Renderer:
         """Sandboxed (rosdeploy.sandbox): fleet values and template folders are configuration, not code."""
         loaders: list[jinja2.BaseLoader] = [ContainedLoader(str(self.override))] if self.override else []
         loaders.append(jinja2.FileSystemLoader(str(TEMPLATE_DIR)))
-        env = Sandbox(plain_types=(ServiceView, HealthView, UdevView, Host, FleetSpec), loader=jinja2.ChoiceLoader(loaders),
+        env = Sandbox(plain_types=(ServiceView, HealthView, UdevView, Host, FleetSpec),
+                      loader=jinja2.ChoiceLoader(loaders),
                       trim_blocks=True, lstrip_blocks=True,
                       keep_trailing_newline=True, auto_reload=False)
         env.filters.update(FILTERS)
@@ -370,7 +372,8 @@ class Renderer:
         try:
             return self.env.get_template(name)
         except jinja2.TemplateSyntaxError as exc:
-            raise RenderError([Problem(exc.filename or name, exc.lineno, "", f"template syntax error: {exc.message}")]) from exc
+            raise RenderError([Problem(exc.filename or name, exc.lineno, "",
+                                       f"template syntax error: {exc.message}")]) from exc
         except jinja2.TemplateNotFound as exc:
             raise RenderError([self._problem(("templates",), f"template {exc.name} not found")]) from exc
         except jinja2.TemplateError as exc:   # e.g. a link out of the template folder (sandbox.ContainedLoader)
@@ -390,7 +393,8 @@ class Renderer:
                 try:
                     templated[key] = value_template(self.env, str(value))
                 except jinja2.TemplateSyntaxError as exc:
-                    problems.append(self._problem(where + ("environment", key), f"template syntax error: {exc.message}"))
+                    problems.append(self._problem(where + ("environment", key),
+                                                  f"template syntax error: {exc.message}"))
             else:
                 plain[key] = str(value)
         for name in svc.secret_env:
@@ -412,7 +416,8 @@ class Renderer:
         return _Static(
             service=svc, image=spec.image_ref(svc), environment=plain, templated=templated,
             secrets=tuple(sorted(svc.secret_env.items())),
-            healthcheck=HealthView(tuple(hc.test), hc.interval, hc.timeout, hc.retries, hc.start_period) if hc else None,
+            healthcheck=(HealthView(tuple(hc.test), hc.interval, hc.timeout, hc.retries, hc.start_period)
+                         if hc else None),
             # No release version here: a label that changes with every release would make compose
             # recreate every container. The per-service hash is added per robot (restarts.py).
             labels=(("io.rosdeploy.project", spec.project), ("io.rosdeploy.service", svc.name)),
@@ -483,7 +488,8 @@ class Renderer:
         env = dict(GPU_ENV) if gpu else {}
         env.update(st.environment)
         for key, template in st.templated.items():
-            env[key] = self._render_value(template, host, variables, ("services", svc.name, "environment", key), problems)
+            where = ("services", svc.name, "environment", key)
+            env[key] = self._render_value(template, host, variables, where, problems)
         self._check_env_leaks(host, svc.name, env, problems)
         udev_by_path = {f"/dev/{u.symlink}": u for u in host.udev}
         devices, groups = [], set()

@@ -10,7 +10,7 @@ import os
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import yaml
 
@@ -59,7 +59,7 @@ class Doc:
 
     path: str
     data: Any
-    lines: dict[KeyPath, int] = field(default_factory=dict)
+    lines: Mapping[KeyPath, int] = field(default_factory=dict)
 
     def line(self, keypath: KeyPath) -> int | None:
         """Line of the deepest known prefix of keypath (1-based)."""

@@ -224,7 +224,8 @@ def test_restart_present(restart: str) -> None:
     silent("restart-missing", restart=restart)
 
 
-@pytest.mark.parametrize("logging", [None, {"driver": "json-file"}, {"driver": "json-file", "options": {"max-size": "1m"}},
+@pytest.mark.parametrize("logging", [None, {"driver": "json-file"},
+                                     {"driver": "json-file", "options": {"max-size": "1m"}},
                                      {"driver": "syslog"}])
 def test_log_rotation_missing(logging: Any) -> None:
     assert fires("log-rotation-missing", logging=logging).key == "logging"
@@ -350,7 +351,8 @@ def test_robots_without_a_release_get_only_input_rules() -> None:
 def test_parse_env_and_interpolate() -> None:
     env = parse_env("# c\nA=1\nexport B='x y'\nC=\"q\"\nbad line\n")
     assert env == {"A": "1", "B": "x y", "C": "q"}
-    values = interpolate({"k": ["${A}", "$A-$$B", "${MISSING:-dflt}", "${A:?err}", "${EMPTY-x}", 3]}, {**env, "EMPTY": ""})
+    values = interpolate({"k": ["${A}", "$A-$$B", "${MISSING:-dflt}", "${A:?err}", "${EMPTY-x}", 3]},
+                         {**env, "EMPTY": ""})
     assert values == {"k": ["1", "1-$B", "dflt", "1", "", 3]}
 
 

@@ -79,7 +79,8 @@ def test_minimal_fleet_gets_documented_defaults(fleet_dir: Path) -> None:
     assert spec.project == "warehouse" and spec.version == "1.4.2"
     assert spec.inventory == str(fleet_dir / "inventory")
     driver, nav = spec.services
-    assert (driver.name, driver.image, driver.tag, driver.restart) == ("driver", "acme/amr-driver", "1.4.2", "unless-stopped")
+    assert (driver.name, driver.image, driver.tag, driver.restart) == (
+        "driver", "acme/amr-driver", "1.4.2", "unless-stopped")
     assert driver.healthcheck == HealthCheck(("CMD-SHELL", "test -f /run/ok"))
     assert driver.topics == (Topic("/joint_states"),)
     assert nav.depends_on == ("driver",)
@@ -106,7 +107,8 @@ def full_fleet(fleet_dir: Path) -> dict:
             "tag": "1.4.1-3f9a2c1", "command": "ros2 launch 'amr driver' x.py", "environment": {"A": 1, "B": True},
             "secrets": {"TOKEN": "fleet_api_token"}, "devices": ["motor", "lidar"], "gpu": True, "restart": "always",
             "resources": {"memory": "512m", "cpus": 1.5},
-            "healthcheck": {"test": "test -f /ok", "interval": 5, "timeout": "1500ms", "retries": 5, "start_period": "1m"},
+            "healthcheck": {"test": "test -f /ok", "interval": 5, "timeout": "1500ms", "retries": 5,
+                            "start_period": "1m"},
             "topics": [{"name": "/scan", "min_rate": 5}], "user": "1000:1000", "privileged": True,
             "allow_privileged": True, "profiles": ["deploy"], "compose": {"cap_add": ["SYS_NICE"]}}},
     })
@@ -488,3 +490,15 @@ def test_volumes_are_bind_mounts_normalized_with_their_mode(fleet_dir: Path) -> 
 ])
 def test_bad_volumes_name_the_entry_and_the_fix(fleet_dir: Path, volume: Any, words: list[str]) -> None:
     one(fleet_dir, {"services": {"driver": {"volumes": [volume]}}}, "services.driver.volumes[0]", *words)
+
+
+def test_a_file_without_target_is_a_problem_not_a_crash(fleet_dir: Path) -> None:
+    found = problems(fleet_dir, {"files": {"params": {"template": "params.yaml"}}})
+    assert [(p.key, "required key missing" in p.message) for p in found] == [("files.params.target", True)], found
+
+
+def test_a_ready_condition_with_a_newline_is_a_problem_not_a_crash(fleet_dir: Path) -> None:
+    """The control-character scan reports the value; the condition it belongs to must not reach later checks."""
+    found = problems(fleet_dir, {"ready": {"when": [{"service": "a\nb", "command": ["true"]}]}})
+    assert [p.key for p in found] == ["ready.when[0].service"], found
+    assert "newline" in found[0].message

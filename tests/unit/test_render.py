@@ -202,7 +202,8 @@ def test_extra_may_not_repeat_rendered_keys() -> None:
 
 @pytest.mark.parametrize("service_gpu,host_gpu,reserved", [(True, True, True), (True, False, False),
                                                           (False, True, False), (False, False, False)])
-def test_gpu_reservation_only_when_service_and_robot_have_gpu(service_gpu: bool, host_gpu: bool, reserved: bool) -> None:
+def test_gpu_reservation_only_when_service_and_robot_have_gpu(service_gpu: bool, host_gpu: bool,
+                                                              reserved: bool) -> None:
     spec = make_spec(make_service("perception", gpu=service_gpu))
     svc = compose(render(spec, make_host(gpu=host_gpu)))["services"]["perception"]
     if reserved:
@@ -280,7 +281,8 @@ def test_host_mode_has_no_peers() -> None:
     assert env["RMW_IMPLEMENTATION"] == "rmw_cyclonedds_cpp"
     svc = yaml.safe_load(cyc["compose.yml"])["services"]["driver"]
     assert svc["environment"]["CYCLONEDDS_URI"] == "file:///cyclonedds.xml"
-    assert svc["volumes"][0].startswith("../../store/") and svc["volumes"][0].endswith("/cyclonedds.xml:/cyclonedds.xml:ro")
+    assert svc["volumes"][0].startswith("../../store/")
+    assert svc["volumes"][0].endswith("/cyclonedds.xml:/cyclonedds.xml:ro")
 
 
 def test_host_mode_with_inventory_peers_keeps_multicast() -> None:
