@@ -13,7 +13,8 @@ alternating the two run by run so both see the same load, and prints the ratio o
 medians (this code / DIR's). The load average is printed before and after: the machine may
 be shared. Children run with bytecode caching on whatever the caller's environment says
 (PYTHONDONTWRITEBYTECODE dropped), as an installed rosdeploy has its .pyc files; one warm-up
-run per checkout writes them. `render` writes into a fresh folder each run.
+run per checkout writes them. `render` writes into a new folder each run (none is deleted
+until the end: removing 30,000 files while the next run writes costs that run the disk's time).
 
 Targets (issue 18): 500 robots <= 0.5 s each; 5,000 robots <= 5 s and under 300 MB each.
 Exit 1 when a target is missed.
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import statistics
 import subprocess
 import sys
@@ -43,12 +43,11 @@ Run = tuple[float, float, int, float]   # wall seconds, peak RSS in MB, exit cod
 
 
 def measure(fleet: Path, command: str, out: Path, code: Path = REPO) -> Run:
-    """One child process running `code`'s rosdeploy."""
+    """One child process running `code`'s rosdeploy (render writes into a new folder under `out`)."""
     argv = [sys.executable, "-m", "rosdeploy", command, str(fleet),
             "--vault-password-file", str(fleet.parent / "vault-password")]
     if command == "render":
-        shutil.rmtree(out, ignore_errors=True)
-        argv += ["--out", str(out)]
+        argv += ["--out", str(Path(tempfile.mkdtemp(dir=out)) / "out")]
     t0 = time.perf_counter()
     # A fresh interpreter per run: RUSAGE_CHILDREN's ru_maxrss is the largest child so far,
     # so each measurement runs in a grandchild whose own peak the child reports.
@@ -97,10 +96,11 @@ def main(argv: list[str] | None = None) -> int:
     other = f"{'other s':>9}{'ratio':>7}{'cpu ratio':>10}" if args.against else ""
     print(f"{'robots':>7} {'command':<9}{'median s':>9}{'best s':>8}{'cpu s':>7}{'peak MB':>9}{other}  target")
     for robots in args.robots:
-        with tempfile.TemporaryDirectory(prefix="rosdeploy-vbench-") as tmp:
+        with tempfile.TemporaryDirectory(prefix="rosdeploy-vbench-") as tmp, \
+                tempfile.TemporaryDirectory(prefix="rosdeploy-vbench-out-", dir=args.render_out) as rendered:
             fleet = build_project(Path(tmp), robots)
+            out = Path(rendered)
             for command in COMMANDS:
-                out = Path(args.render_out or tmp) / f"out-{robots}"
                 for code in codes:   # warm-up: .pyc files written, the inventory in the page cache
                     measure(fleet, command, out, code)
                 runs: dict[Path, list[Run]] = {code: [] for code in codes}
