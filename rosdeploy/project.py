@@ -67,7 +67,9 @@ def gc_paused() -> Iterator[None]:
     Loading and rendering 5,000 robots keep about a million small objects alive, and each of the
     collector's full passes walks all of them: a quarter of the CPU time of `render` and `check`
     (issue 18, bench/validate_bench.py). These stages make no reference cycles worth collecting
-    (the peak RSS is the same within 3%); the collector resumes after.
+    (the peak RSS is the same within 3%). When the collector resumes, what the stage built is
+    frozen (gc.freeze: left out of every later collection, still freed when unreferenced);
+    otherwise the first collection after would walk all of it at once.
     """
     if not gc.isenabled():
         yield
@@ -76,6 +78,7 @@ def gc_paused() -> Iterator[None]:
     try:
         yield
     finally:
+        gc.freeze()
         gc.enable()
 
 

@@ -288,6 +288,11 @@ def _host_problem(host: Host, key: str, message: str) -> Problem:
     return Problem(file, line, key, f"robot {host.name!r}: {message}")
 
 
+def _with_mounts(svc: ServiceView, mounts: tuple[str, ...]) -> ServiceView:
+    """The service with the robot's own files mounted (a copy only when it has some: most have none)."""
+    return replace(svc, mounts=mounts) if mounts else svc
+
+
 def _device_group(path: str, logical: str, udev: UdevDevice | None) -> str | None:
     """The group a container user needs for a device node: dialout for serial, video for cameras."""
     subsystem = ""
@@ -448,7 +453,7 @@ class Renderer:
         dds = next(f for f in rendered if f.name == self.dds_file)
         store = [restarts.stored(dds)]
         context["dds_source"] = restarts.mount_source(store[0])
-        context["services"] = [restarts.with_hash(replace(sv, mounts=own.mounts.get(sv.name, ())), context)
+        context["services"] = [restarts.with_hash(_with_mounts(sv, own.mounts.get(sv.name, ())), context)
                                for sv in context["services"]]
         rendered.append(self._file(COMPOSE_FILE, self.templates[COMPOSE_FILE], context, host))
         files = sorted(rendered + store + list(own.files), key=lambda f: f.name)
