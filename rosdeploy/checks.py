@@ -139,10 +139,16 @@ def _run_rule(r: Rule, ctx: Context) -> Iterator[tuple[Problem, str]]:
         for t in ctx.targets:
             yield from ((_stamp(p, r), t.host.name) for p in r.func(ctx, t))
     else:
+        # Most robots give the same findings (the message says {robots}): locate each one once.
+        located: dict[tuple[str, tuple, str], Problem] = {}
         for t in ctx.targets:
             for name, svc in t.services.items():
                 for keypath, message in r.func(ctx, t, name, svc if isinstance(svc, dict) else {}):
-                    yield _stamp(_service_problem(ctx.spec, name, keypath, message), r), t.host.name
+                    p = located.get((name, keypath, message))
+                    if p is None:
+                        p = located[name, keypath, message] = _stamp(_service_problem(ctx.spec, name, keypath,
+                                                                                          message), r)
+                    yield p, t.host.name
 
 
 def _service_problem(spec: FleetSpec, name: str, keypath: tuple, message: str) -> Problem:

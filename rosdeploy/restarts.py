@@ -53,7 +53,7 @@ def service_hash(svc: Any, ctx: Mapping[str, Any]) -> str:
     """Everything that makes this service's container what it is, and nothing else."""
     # The fields as they are, not dataclasses.asdict: its deep copy was a third of rendering
     # 5,000 robots (issue 18); _json_value turns a nested dataclass into the same JSON.
-    fields = {f.name: getattr(svc, f.name) for f in dataclasses.fields(svc) if f.name not in ("labels", "extra_yaml")}
+    fields = {k: v for k, v in _fields(svc).items() if k not in ("labels", "extra_yaml")}
     fields["labels"] = [kv for kv in svc.labels if kv[0] != HASH_LABEL]
     secrets = dict(ctx.get("secrets") or ())
     data = {"service": fields, "common": {k: ctx.get(k) for k in _COMMON},
@@ -66,8 +66,15 @@ def _json_value(value: Any) -> Any:
     """What json.dumps cannot write: a dataclass as its fields (json.dumps comes back here for a
     nested one, so the text is asdict's), anything else as its str."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+        return _fields(value)
     return str(value)
+
+
+def _fields(obj: Any) -> dict[str, Any]:
+    """A dataclass instance's fields by name (its __dict__ holds exactly them, unless it uses slots)."""
+    if hasattr(obj, "__dict__"):
+        return vars(obj)
+    return {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
 
 
 def with_hash(svc: Any, ctx: Mapping[str, Any]) -> Any:
