@@ -1,11 +1,12 @@
-"""Benchmark: load a 500-robot project and render every robot's release.
+"""Benchmark: load a 500-robot project, render every robot's release and run the checks.
 
     python bench/render_bench.py [--robots 500] [--runs 5] [--profile]
 
 Builds the inventory in a temp dir (YAML hosts, group_vars, 3 services, devices,
-udev rules, one robot in ten with a GPU), then times, for each of N runs:
-load_project (fleet file + inventory) and Renderer + render of every robot.
-Prints best and median. The goal on the project's 2-core machine: under 2 s total.
+udev rules, one robot in ten with a GPU), then times, for each of N runs, in this process:
+load_project (fleet file + inventory) and project.prepare (Renderer, render of every robot
+and every check, as validate, check, render and apply run them). Prints best and median.
+The goal on the project's 2-core machine: under 2 s total.
 """
 from __future__ import annotations
 
@@ -23,8 +24,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from rosdeploy.project import load_project  # noqa: E402
-from rosdeploy.render import Renderer  # noqa: E402
+from rosdeploy.project import load_project, prepare  # noqa: E402
 from rosdeploy.vault import ansible_encrypt  # noqa: E402
 
 SITES = 5
@@ -97,8 +97,7 @@ def run_once(fleet: Path) -> tuple[float, float, int]:
     t0 = time.perf_counter()
     project = load_project(str(fleet), vault_password_file=str(fleet.parent / "vault-password"))
     t1 = time.perf_counter()
-    renderer = Renderer(project.spec)
-    releases = [renderer.render(host) for host in project.targets()]
+    releases, _ = prepare(project, project.targets())
     t2 = time.perf_counter()
     return t1 - t0, t2 - t1, len(releases)
 
@@ -119,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
         runs = [run_once(fleet) for _ in range(args.runs)]
     count = runs[0][2]
     columns: dict[str, Callable[[tuple[float, float, int]], float]] = {
-        "load_project": lambda r: r[0], "render": lambda r: r[1], "total": lambda r: r[0] + r[1]}
+        "load_project": lambda r: r[0], "prepare": lambda r: r[1], "total": lambda r: r[0] + r[1]}
     print(f"{count} robots, {args.runs} runs")
     print(f"{'stage':<14}{'best s':>9}{'median s':>10}{'per robot ms':>14}")
     for name, pick in columns.items():
