@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import copy
+import random
 import os
 from pathlib import Path
 from typing import Any
@@ -502,3 +503,42 @@ def test_a_ready_condition_with_a_newline_is_a_problem_not_a_crash(fleet_dir: Pa
     found = problems(fleet_dir, {"ready": {"when": [{"service": "a\nb", "command": ["true"]}]}})
     assert [p.key for p in found] == ["ready.when[0].service"], found
     assert "newline" in found[0].message
+
+
+RICH: dict[str, Any] = merge(BASE, {
+    "ros": {"rmw": "fastdds", "network_mode": "bridge"}, "health": {"probe_service": "driver"},
+    "rollout": {"waves": [1, "50%"], "max_fail": 0},
+    "files": {"params": {"template": "params/{{ inventory_hostname }}.yaml", "target": "/config/params.yaml"}},
+    "ready": {"when": [{"topic": "/robot_mode", "field": "data", "is": "IDLE"},
+                       {"service": "driver", "command": ["true"]}]},
+    "services": {"driver": {"environment": {"RATE": 5}, "secrets": {"TOKEN": "fleet_token"}, "files": ["params"],
+                            "resources": {"memory": "256m", "cpus": 0.5}, "volumes": ["/opt/maps:/maps:ro"]},
+                 "navigation": {"compose": {"cap_add": ["SYS_NICE"]}, "healthcheck": "image"}},
+})
+ODD: list[Any] = [None, True, 0, -1, 2.5, "", "Bad Name", "latest", "driver", "nosuch", "a\nb", "ROS_DOMAIN_ID",
+                  "TOKEN", "$NOPE/x", "../x", "/fastdds.xml", "0m", [], ["nosuch", "driver"], ["Bad!", "nosuch"],
+                  ["driver", "driver"], [1, "x"], {}, {"a": 1}, {"test": "x"}, {"template": "a"}, ["CMD", 5],
+                  {"cap_add": "X"}, {"ROS_DOMAIN_ID": "1"}, ["params", "nope"], "no"]
+
+
+def _key_paths(data: Any, kp: tuple = ()) -> list[tuple]:
+    inner = data.items() if isinstance(data, dict) else enumerate(data) if isinstance(data, list) else ()
+    return [kp] + [p for key, value in inner for p in _key_paths(value, kp + (key,))]
+
+
+def test_mutated_fleet_files_give_problems_never_a_crash(fleet_dir: Path) -> None:
+    """Random odd values at random keys (how the two crashes above were found): a FleetSpec or a
+    FleetSpecError, nothing else, for every file."""
+    rng = random.Random(18)
+    for _ in range(300):
+        data = copy.deepcopy(RICH)
+        for _ in range(rng.randrange(1, 4)):
+            kp = rng.choice(_key_paths(data)[1:])
+            parent = data
+            for key in kp[:-1]:
+                parent = parent[key]
+            parent[kp[-1]] = copy.deepcopy(rng.choice(ODD))
+        try:
+            load_fleet(write(fleet_dir, data))
+        except FleetSpecError as exc:
+            assert exc.problems and all(p.file and p.message for p in exc.problems)
