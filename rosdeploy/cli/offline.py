@@ -99,7 +99,7 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
         out.warn(f"{warning.severity}: {warning}")
     root = Path(args.out)
     try:
-        written = [write_release(root / name, release) for name, release in releases.items()]
+        written = write_releases(root, releases)
     except OSError as exc:   # --out is a file, read-only, too long a name...
         reason = exc.strerror or str(exc)
         raise InputError([Problem(str(exc.filename or root), None, "--out",
@@ -112,6 +112,17 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
               [(r.host, r.release_id, r.digest[:16], len(r.files)) for r in releases.values()])
     out.line(f"wrote {len(releases)} robot(s) to {root}/<robot>/")
     return EXIT_OK
+
+
+def write_releases(root: Path, releases: dict[str, RenderedRelease]) -> list[Path]:
+    """Every robot's folder under root, in the order given. Four threads: creating a file is
+    kernel time, which the threads spend on both cores (the GIL is released meanwhile); 5,000
+    robots are 30,000 files and 15,000 folders, 5.6 s one by one and 3-4 s this way on the
+    project's 2-core machine (issue 18)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        return list(pool.map(lambda item: write_release(root / item[0], item[1]), releases.items()))
 
 
 def write_release(folder: Path, release: RenderedRelease) -> Path:
