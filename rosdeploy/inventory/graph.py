@@ -9,6 +9,17 @@ from rosdeploy.inventory.hostvars import BadValue, to_int
 from rosdeploy.yamlsrc import Doc
 
 
+# Far deeper than any real fleet's group tree; past it, every group's ancestor set makes
+# memory grow with the square of the depth.
+MAX_DEPTH = 1000
+
+
+class _TooDeep(Exception):
+    def __init__(self, group: str) -> None:
+        super().__init__(group)
+        self.group = group
+
+
 @dataclass(frozen=True)
 class Graph:
     """Parents, depth and ancestors of every group, computed once for all hosts."""
@@ -19,7 +30,7 @@ class Graph:
 
     @staticmethod
     def build(draft: Draft) -> "Graph | None":
-        """None when the groups form a cycle (reported in draft.problems)."""
+        """None when the groups form a cycle or nest too deep (reported in draft.problems)."""
         _reconcile(draft)
         if _report_cycles(draft):
             return None
@@ -30,8 +41,14 @@ class Graph:
         frozen = {name: tuple(found) for name, found in parents.items()}
         depth: dict[str, int] = {}
         ancestors: dict[str, frozenset[str]] = {}
-        for name in draft.groups:
-            _walk_up(name, frozen, depth, ancestors)
+        try:
+            for name in draft.groups:
+                _walk_up(name, frozen, depth, ancestors)
+        except _TooDeep as deep:
+            draft.problems.append(Origin(Doc(draft.groups[deep.group].source, None)).problem(
+                (), f"group {deep.group!r} is nested more than {MAX_DEPTH} groups below `all`: flatten the "
+                    "group tree (each group's vars and ancestors grow with its depth)"))
+            return None
         order = {name: (depth[name], _priority(draft.groups[name], draft), name) for name in draft.groups}
         return Graph(frozen, order, ancestors)
 
@@ -56,37 +73,62 @@ def _reconcile(draft: Draft) -> None:
 
 
 def _report_cycles(draft: Draft) -> bool:
-    state: dict[str, int] = {}   # 1: on the current path, 2: done
+    """Depth-first, with an explicit stack: a chain of thousands of groups is a valid inventory
+    (or an attack), and must not meet Python's recursion limit."""
+    done: set[str] = set()
     found = False
-
-    def visit(name: str, path: list[str]) -> None:
-        nonlocal found
-        state[name] = 1
-        for child, origin in draft.groups[name].children.items():
-            if state.get(child) == 1 or child == "all":
-                cycle = " -> ".join(path[path.index(child):] + [child]) if child in path else f"{name} -> all"
+    for root in draft.groups:
+        if root in done:
+            continue
+        path, on_path = [root], {root: 0}
+        stack = [iter(draft.groups[root].children.items())]
+        while stack:
+            step = next(stack[-1], None)
+            if step is None:
+                stack.pop()
+                finished = path.pop()
+                del on_path[finished]
+                done.add(finished)
+                continue
+            child, origin = step
+            if child in on_path or child == "all":
+                cycle = _chain(path[on_path[child]:] + [child]) if child in on_path else f"{path[-1]} -> all"
                 draft.problems.append(origin.problem((), f"group cycle {cycle}: a group cannot contain "
                                                          "itself (or `all`); remove this children entry"))
                 found = True
-            elif child not in state:
-                visit(child, path + [child])
-        state[name] = 2
-
-    for name in draft.groups:
-        if name not in state:
-            visit(name, [name])
+            elif child not in done:
+                on_path[child] = len(path)
+                path.append(child)
+                stack.append(iter(draft.groups[child].children.items()))
     return found
+
+
+def _chain(names: list[str]) -> str:
+    """`a -> b -> c`; a long cycle keeps its ends, so one message stays one readable line."""
+    if len(names) > 9:
+        names = [*names[:4], f"... ({len(names) - 8} more)", *names[-4:]]
+    return " -> ".join(names)
 
 
 def _walk_up(name: str, parents: Mapping[str, tuple[str, ...]], depth: dict[str, int],
              ancestors: dict[str, frozenset[str]]) -> None:
-    if name in depth:
-        return
-    for parent in parents[name]:
-        _walk_up(parent, parents, depth, ancestors)
-    # Ansible's depth is the longest path from `all`: a group is deeper than every parent.
-    depth[name] = 1 + max((depth[p] for p in parents[name]), default=-1)
-    ancestors[name] = frozenset({name}).union(*(ancestors[p] for p in parents[name]))
+    """Depth and ancestors of `name` and every group above it, parents first (iteratively, as above)."""
+    stack = [name]
+    while stack:
+        group = stack[-1]
+        if group in depth:
+            stack.pop()
+            continue
+        waiting = [p for p in parents[group] if p not in depth]
+        if waiting:
+            stack.extend(waiting)
+            continue
+        stack.pop()
+        # Ansible's depth is the longest path from `all`: a group is deeper than every parent.
+        depth[group] = 1 + max((depth[p] for p in parents[group]), default=-1)
+        if depth[group] > MAX_DEPTH:
+            raise _TooDeep(group)
+        ancestors[group] = frozenset({group}).union(*(ancestors[p] for p in parents[group]))
 
 
 def _priority(group: GroupDraft, draft: Draft) -> int:

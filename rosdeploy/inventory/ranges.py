@@ -9,6 +9,10 @@ from rosdeploy.inventory.known import NAME
 
 
 _RANGE = re.compile(r"\[([0-9a-zA-Z]*):([0-9a-zA-Z]*)(?::(\d+))?\]")
+# Ten times the largest fleet rosdeploy is measured with: a range past it is a typo in a
+# bound (`[1:10000000]`), and expanding it would take the machine's memory first.
+MAX_RANGE_HOSTS = 50_000
+MAX_HOSTS = 100_000      # the same bound for an inventory's ranges taken together
 
 
 def add_hosts(raw: str, group: str, host_vars: dict[str, Any], origin: Origin, draft: Draft) -> None:
@@ -18,6 +22,10 @@ def add_hosts(raw: str, group: str, host_vars: dict[str, Any], origin: Origin, d
         names = _expand_range(spec)
     except ValueError as exc:
         draft.problems.append(origin.problem((), f"invalid host range {raw!r}: {exc}"))
+        return
+    if len(draft.hosts) + len(names) > MAX_HOSTS:
+        draft.problems.append(origin.problem((), f"host range {raw!r} takes this inventory past {MAX_HOSTS} "
+                                                 "hosts: check the ranges' bounds"))
         return
     if port is not None:
         host_vars = {"ansible_port": port, **host_vars}
@@ -34,12 +42,33 @@ def _split_port(raw: str) -> tuple[str, int | None]:
 
 def _expand_range(spec: str) -> list[str]:
     """`amr-[01:03]` → amr-01, amr-02, amr-03 (Ansible: zero padding kept, `[a:c]`, `[0:9:2]`)."""
+    count = _range_count(spec)
+    if count > MAX_RANGE_HOSTS:
+        raise ValueError(f"it names {count} hosts, more than {MAX_RANGE_HOSTS}: check its bounds")
+    return _expanded(spec)
+
+
+def _range_count(spec: str) -> int:
+    """How many names a spec expands to, without expanding it."""
+    count = 1
+    for found in _RANGE.finditer(spec):
+        start, end, stride = found[1] or "0", found[2], int(found[3] or 1)
+        if stride < 1:
+            continue          # refused with its own message when expanded
+        if start.isdigit() and end.isdigit():
+            count *= max(0, (int(end) - int(start)) // stride + 1)
+        elif len(start) == len(end) == 1:
+            count *= max(0, (ord(end) - ord(start)) // stride + 1)
+    return count
+
+
+def _expanded(spec: str) -> list[str]:
     found = _RANGE.search(spec)
     if not found:
         return [spec]
     head, tail = spec[:found.start()], spec[found.end():]
     items = _range_items(found[1] or "0", found[2], int(found[3] or 1))
-    rests = _expand_range(tail)
+    rests = _expanded(tail)
     return [head + item + rest for item in items for rest in rests]
 
 

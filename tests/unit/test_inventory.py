@@ -141,6 +141,42 @@ def test_a_directory_that_is_no_inventory_is_refused_before_anything_runs(tmp_pa
     assert not marker.exists()
 
 
+def chain(depth: int, closing: str) -> str:
+    """all > g0 > g1 > ... > g<depth>, each child declared at the top level (no YAML nesting)."""
+    groups = "".join(f"    g{i}:\n      children:\n        g{i + 1}: {{}}\n" for i in range(depth))
+    return f"all:\n  children:\n{groups}    g{depth}:\n{closing}"
+
+
+def test_a_long_chain_of_groups_loads_without_recursion(tmp_path):
+    write(tmp_path, {"hosts.yml": chain(900, "      hosts: {r1: {ros_domain_id: 1}}\n")})
+    inventory = load_inventory(str(tmp_path))
+    assert {"g0", "g450", "g900"} <= set(inventory.hosts["r1"].groups)
+
+
+def test_groups_nested_past_the_bound_are_refused_by_name(tmp_path):
+    message = problems_of(tmp_path, {"hosts.yml": chain(5000, "      hosts: {r1: {ros_domain_id: 1}}\n")})
+    assert "group 'g1000' is nested more than 1000 groups" in message and "hosts.yml:" in message
+
+
+def test_a_long_group_cycle_is_one_short_line(tmp_path):
+    message = problems_of(tmp_path, {"hosts.yml": chain(3000, "      children: {g0: {}}\n")})
+    assert "group cycle g0 -> g1 -> g2 -> g3 -> ... (2994 more) -> g2998 -> g2999 -> g3000 -> g0" in message
+    assert len(message.splitlines()) == 1 and len(message) < 400
+
+
+@pytest.mark.parametrize("entry, count", [("r[1:9999999999]", 9999999999), ("r[a:z][a:z][a:z][a:z]", 26 ** 4),
+                                          ("r[1:99999][1:99999:2]", 99999 * 50000)])
+def test_a_host_range_past_the_bound_is_refused_before_it_expands(tmp_path, entry, count):
+    message = problems_of(tmp_path, {"hosts": f"[lab]\n{entry} ros_domain_id=1\n"})
+    assert f"hosts:2: invalid host range {entry!r}: it names {count} hosts, more than 50000" in message
+
+
+def test_ranges_together_past_the_bound_are_refused(tmp_path):
+    lines = "".join(f"{p}[1:40000]\n" for p in "abc")
+    message = problems_of(tmp_path, {"hosts": f"[lab]\n{lines}"})
+    assert "hosts:4: host range 'c[1:40000]' takes this inventory past 100000 hosts" in message
+
+
 def test_yaml_hosts_may_be_null_and_ranges_expand(tmp_path):
     write(tmp_path, {"hosts.yml": "all:\n  vars:\n    ros_domain_id: 3\n  children:\n    empty:\n"
                                   "    fleet:\n      hosts:\n        amr-[01:03]:\n        spare:\n"})
