@@ -240,8 +240,12 @@ class Reader:
         if unset:
             raise Invalid(f"environment variable ${unset.group(1)} is not set: export it, "
                           "or write the path without it")
+        expanded = os.path.expanduser(expanded)   # os.path's: an unknown ~user stays, Path's raises
+        if expanded.startswith("~"):
+            raise Invalid(f"there is no user {expanded[1:].split('/', 1)[0]!r} to expand "
+                          f"{expanded.split('/', 1)[0]} for: write the path without it")
         # Absolute, so later stages (the renderer, remote commands) need not know where the fleet file was.
-        return os.path.abspath((base or self.base) / Path(expanded).expanduser())
+        return os.path.abspath((base or self.base) / expanded)
 
 
 # -------------------------------------------------------------- converters
@@ -704,7 +708,7 @@ def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[st
     """-i and --version: checked like the keys they replace, located on the command line."""
     out: dict[str, Any] = {}
     if inventory:
-        out["inventory"] = os.path.abspath(Path(os.path.expandvars(inventory)).expanduser())
+        out["inventory"] = os.path.abspath(os.path.expanduser(os.path.expandvars(inventory)))
         if not _exists(out["inventory"]):
             r.problems.append(Problem("--inventory", None, "", f"{inventory} does not exist: fix the -i path"))
     if version is not None:

@@ -123,10 +123,11 @@ def load_data(text: str, path: str = "<text>") -> Any:
         raise InputError([Problem(path, node.start_mark.line + 1, "", f"invalid YAML: {exc}")]) from exc
 
 
-def read_text(path: str) -> str:
-    """A file's text as UTF-8; an unreadable file or a stray byte is a file:line problem (never its content)."""
+def read_bytes(path: str) -> bytes:
+    """A configuration file's bytes: a regular file of bounded size, or a file problem."""
     try:
-        with open(path, "rb") as handle:
+        # O_NONBLOCK: opening a FIFO for reading would otherwise wait for a writer, forever.
+        with os.fdopen(os.open(path, os.O_RDONLY | os.O_NONBLOCK), "rb") as handle:
             info = os.fstat(handle.fileno())
             if not stat.S_ISREG(info.st_mode):   # /dev/zero, a FIFO: reading would never end
                 raise InputError([Problem(path, None, "", "not a regular file: give the path of a YAML file")])
@@ -136,6 +137,12 @@ def read_text(path: str) -> str:
     if len(data) > MAX_FILE_BYTES:
         raise InputError([Problem(path, None, "", f"larger than {MAX_FILE_BYTES >> 20} MiB: not a configuration "
                                                   "file rosdeploy will read")])
+    return data
+
+
+def read_text(path: str) -> str:
+    """A file's text as UTF-8; an unreadable file or a stray byte is a file:line problem (never its content)."""
+    data = read_bytes(path)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -24,9 +24,9 @@ class Reader:
 
     def text(self, path: Path, problems: list[Problem]) -> tuple[str, bool] | None:
         try:
-            data = path.read_bytes()
-        except OSError as exc:
-            problems.append(Problem(str(path), None, "", f"cannot read file: {exc.strerror}"))
+            data = yamlsrc.read_bytes(str(path))
+        except InputError as exc:
+            problems.extend(exc.problems)
             return None
         plain, secret = self.vault.read(str(path), data)
         try:

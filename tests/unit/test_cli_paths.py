@@ -2,7 +2,9 @@
 is an input error naming the argument, never an internal error."""
 from __future__ import annotations
 
+import os
 import shutil
+import signal
 from pathlib import Path
 
 import pytest
@@ -66,3 +68,40 @@ def test_render_out_that_cannot_be_written_is_an_input_error(capsys: pytest.Capt
     code, text = run(capsys, "render", *fleet_args(lab), "--out", path)
     assert code == 2 and "--out" in text and "cannot write there" in text
     assert target.read_text() == "keep me\n"
+
+
+def test_a_fifo_as_fleet_file_or_in_the_inventory_is_refused_not_waited_on(capsys: pytest.CaptureFixture,
+                                                                           lab: Path) -> None:
+    # A regression would block in open(): SIGALRM turns that into a failure instead of a stuck suite.
+    signal.signal(signal.SIGALRM, _too_slow)
+    signal.alarm(20)
+    try:
+        _fifo_cases(capsys, lab)
+    finally:
+        signal.alarm(0)
+
+
+def _too_slow(*_: object) -> None:
+    raise AssertionError("rosdeploy waited on a FIFO")
+
+
+def _fifo_cases(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    os.mkfifo(lab / "inventory" / "extra")
+    code, text = run(capsys, "validate", *fleet_args(lab))
+    assert code == 2 and f"{lab / 'inventory' / 'extra'}: not a regular file" in text
+    (lab / "inventory" / "extra").unlink()
+    os.mkfifo(lab / "pipe.yml")
+    code, text = run(capsys, "validate", str(lab / "pipe.yml"))
+    assert code == 2 and "pipe.yml: not a regular file" in text
+
+
+@pytest.mark.parametrize("line", ["inventory: ~no-such-user-x/inventory", "ssh: {known_hosts: ~no-such-user-x/kh}"])
+def test_an_unknown_user_in_a_fleet_path_is_named_at_its_line(capsys: pytest.CaptureFixture, lab: Path,
+                                                              line: str) -> None:
+    fleet = lab / "fleet.yml"
+    kept = [x for x in fleet.read_text().splitlines() if not x.startswith("inventory:")]
+    if line.startswith("ssh"):
+        kept.insert(2, "inventory: ./inventory")
+    fleet.write_text("\n".join([*kept, line]) + "\n")
+    code, text = run(capsys, "validate", *fleet_args(lab))
+    assert code == 2 and "there is no user 'no-such-user-x'" in text and "fleet.yml:" in text
