@@ -47,6 +47,8 @@ CHECK_SCRIPT = _PROLOGUE + _script("hostchanges_check.sh")
 INSTALL_SCRIPT = _PROLOGUE + _script("hostchanges_install.sh")
 # Run as root: install or remove the files, verify, reload and trigger udev.
 ROOT_SCRIPT = _script("hostchanges_root.sh")
+# Run by the deploy guard (guard.sh) when it goes back to a release: left on the robot by INSTALL_SCRIPT.
+RESTORE_SCRIPT = _script("hostchanges_restore.sh")
 
 
 @dataclass(frozen=True)
@@ -189,7 +191,7 @@ def install_command(root: str, project: str, release: str, how: Become, subsyste
     """Install `release`'s host changes; then check that `devices` resolve."""
     rules, conf, cron = targets(project)
     cmd = script("host-install", INSTALL_SCRIPT, root, project, release, how.mode or "refused", ROOT_SCRIPT,
-                 ",".join(sorted(set(subsystems))), rules, conf, cron, rotation.STATE_DIR, *devices)
+                 ",".join(sorted(set(subsystems))), rules, conf, cron, rotation.STATE_DIR, RESTORE_SCRIPT, *devices)
     return _with_password(cmd, how)
 
 

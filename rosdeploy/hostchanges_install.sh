@@ -4,8 +4,9 @@
 # root for hostchanges_root.sh when something does, then checks, as this user, that every
 # mapped device resolves (after the udev trigger, before anything restarts).
 # $1 release  $2 direct|sudo-n|sudo-S  $3 the root script  $4 subsystems (comma-separated)
-# $5 rules target  $6 logrotate.d target  $7 cron.d target  $8 state dir  $9... device paths
-release=$1; mode=$2; inner=$3; subsystems=$4; rules=$5; conf=$6; cron=$7; state=$8; shift 8
+# $5 rules target  $6 logrotate.d target  $7 cron.d target  $8 state dir  $9 the guard's restore
+# script  $10... device paths
+release=$1; mode=$2; inner=$3; subsystems=$4; rules=$5; conf=$6; cron=$7; state=$8; restore=$9; shift 9
 rel=$dir/releases/$release
 [ -d "$rel" ] || { echo "release $release is not on this robot" >&2; exit 4; }
 # A file with only comments and blank lines installs nothing (and removes what is there).
@@ -28,6 +29,10 @@ if differs "$rel/99-rosdeploy.rules" "$rules" || differs "$rotation" "$cron" || 
 else
   echo "host changes unchanged"
 fi
+# What the deploy guard needs to restore a release's host changes without the controller.
+mkdir -p "$dir/.host" && printf '%s\n' "$inner" > "$dir/.host/root.sh" && printf '%s\n' "$restore" > "$dir/.host/restore.sh" \
+  && printf '%s\n' "$mode" "$subsystems" "$rules" "$conf" "$cron" "$state" > "$dir/.host/args" \
+  || echo "note: cannot write $dir/.host: the deploy guard could not restore these host changes"
 missing=0
 for device in "$@"; do
   [ -e "$device" ] && continue

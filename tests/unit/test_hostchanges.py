@@ -169,7 +169,7 @@ def _install(robot: dict, release: str, mode: str = "direct",
              devices: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
     rules, conf, cron = robot["targets"]
     argv = ("sh", "-c", hostchanges.INSTALL_SCRIPT, "rosdeploy", str(robot["root"]), "demo", release, mode,
-            hostchanges.ROOT_SCRIPT, "tty", rules, conf, cron, robot["state"], *devices)
+            hostchanges.ROOT_SCRIPT, "tty", rules, conf, cron, robot["state"], hostchanges.RESTORE_SCRIPT, *devices)
     return subprocess.run(argv, capture_output=True, text=True, env=robot["env"], timeout=30)
 
 
@@ -223,3 +223,21 @@ def test_a_mapped_device_must_resolve_after_the_trigger(robot: dict) -> None:
 def test_a_missing_device_names_the_inventory_entry_and_its_rule() -> None:
     (message,) = hostchanges.missing_devices("installed x\nmissing-device /dev/robot/motor\n", _h())
     assert "`devices.motor`" in message and 'SYMLINK+="robot/motor" for 0403:6001' in message and "on r1" in message
+
+
+def test_the_install_leaves_what_the_guard_needs_to_restore_a_release(robot: dict) -> None:
+    _put(robot, "1.0.0-a", {"99-rosdeploy.rules": RULES, "logrotate.conf": "c\n", "logrotate.cron": CRON})
+    _put(robot, "1.1.0-b", {"99-rosdeploy.rules": RULES.replace("motor", "drive"), "logrotate.conf": "c\n",
+                            "logrotate.cron": CRON.replace("*/1", "*/10")})
+    assert _install(robot, "1.0.0-a").returncode == 0 and _install(robot, "1.1.0-b").returncode == 0
+    rules, _, cron = (Path(t) for t in robot["targets"])
+    assert "*/10" in cron.read_text() and "drive" in rules.read_text()
+    project = robot["root"] / "demo"
+    restore = ("sh", str(project / ".host/restore.sh"), str(project))
+    back = subprocess.run((*restore, "1.0.0-a"), capture_output=True, text=True, env=robot["env"], timeout=30)
+    assert back.returncode == 0 and cron.read_text() == CRON and rules.read_text() == RULES, back
+    assert subprocess.run((*restore, ""), env=robot["env"], timeout=30).returncode == 0    # no previous release
+    args = project / ".host/args"
+    args.write_text(args.read_text().replace("direct", "sudo-S", 1))
+    refused = subprocess.run((*restore, "1.1.0-b"), capture_output=True, text=True, env=robot["env"], timeout=30)
+    assert refused.returncode == 1 and "no password is kept" in refused.stdout and cron.read_text() == CRON
