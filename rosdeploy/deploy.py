@@ -403,7 +403,7 @@ def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
     problems = preflight(state, run, run.spec.min_free_disk_mb)
     if run.ctx.host_changes:
         problems += hostchanges.preflight(run.t, run.root, run.spec.project, run.host, release,
-                                          run.ctx.become_password)
+                                          run.ctx.become_password, state.missing_devices)
     if problems:
         return run.result(FAILED, running_release=old, reason="preflight: " + "; ".join(problems), **base)
     holder = run.lock(run.guard_arm(state, release))

@@ -202,8 +202,9 @@ def _with_password(cmd: Command, how: Become) -> Command:
     return Command(cmd.argv, stdin=(how.password + "\n").encode(), timeout=cmd.timeout, label=cmd.label)
 
 
-def missing_devices(stdout: str, host: Host) -> list[str]:
-    """A message per mapped device that did not resolve after the rules were installed and triggered."""
+def missing_devices(stdout: str, host: Host,
+                    when: str = "after the udev rules were installed and triggered") -> list[str]:
+    """A message per mapped device that did not resolve (`missing-device PATH` lines)."""
     names = {path: name for name, path in host.devices.items()}
     rules = {f"/dev/{u.symlink}": u for u in host.udev}
     out = []
@@ -212,8 +213,8 @@ def missing_devices(stdout: str, host: Host) -> list[str]:
         made = (f"the udev rule SYMLINK+=\"{rule.symlink}\" for {rule.vendor}:{rule.product}"
                 + (f" serial {rule.serial}" if rule.serial else "") + " (`udev` in the inventory) did not create it"
                 if rule else "no udev rule of this robot creates it")
-        out.append(f"device {path} (`devices.{names.get(path, '?')}` in the inventory) is missing on {host.name} after "
-                   f"the udev rules were installed and triggered: {made}; plug it in, check the rule's ids "
+        out.append(f"device {path} (`devices.{names.get(path, '?')}` in the inventory) is missing on {host.name} "
+                   f"{when}: {made}; plug it in, check the rule's ids "
                    "(`udevadm info -a -n <device>`), or fix the inventory")
     return out
 
@@ -221,11 +222,17 @@ def missing_devices(stdout: str, host: Host) -> list[str]:
 # ------------------------------------------------------------- the deploy's calls
 
 def preflight(t: Any, root: str, project: str, host: Host, release: RenderedRelease,
-              password: str | None = None) -> list[str]:
-    """Per robot, before anything changes: can the host changes be made? (one round trip)"""
+              password: str | None = None, missing: tuple[str, ...] = ()) -> list[str]:
+    """Per robot, before anything changes: can the host changes be made? (one round trip)
+    `missing`: mapped devices not there now. One a udev rule makes waits for the trigger,
+    unless the rules are already installed as they are: then no trigger will come."""
     how = become(host, password)
     out = t.run(check_command(root, project, how, wanted(release, project)))
-    return problems(out.stdout, host, how, schedule(release) is not None)
+    found = problems(out.stdout, host, how, schedule(release) is not None)
+    if targets(project)[0] not in _facts(out.stdout)[0]:
+        lines = "".join(f"missing-device {p}\n" for p in missing if p in made_by_rules(host))
+        found += missing_devices(lines, host, when="with its udev rule installed already")
+    return found
 
 
 def install(t: Any, root: str, project: str, release: str, host: Host, password: str | None = None,

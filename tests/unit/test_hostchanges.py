@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -241,3 +242,27 @@ def test_the_install_leaves_what_the_guard_needs_to_restore_a_release(robot: dic
     args.write_text(args.read_text().replace("direct", "sudo-S", 1))
     refused = subprocess.run((*restore, "1.1.0-b"), capture_output=True, text=True, env=robot["env"], timeout=30)
     assert refused.returncode == 1 and "no password is kept" in refused.stdout and cron.read_text() == CRON
+
+
+class _Robot:
+    """A transport whose host-check answers `stdout`."""
+
+    def __init__(self, stdout: str) -> None:
+        self.stdout = stdout
+
+    def run(self, command: Any) -> Any:
+        from rosdeploy.transport import Result
+        return Result(command.label, self.stdout, "", 0, 0.0)
+
+
+@pytest.mark.parametrize("rules_differ,refused", [(True, False), (False, True)])
+def test_a_device_a_rule_makes_waits_for_the_trigger_only_when_the_rules_change(
+        tmp_path: Path, rules_differ: bool, refused: bool) -> None:
+    answer = ("differs /etc/udev/rules.d/99-rosdeploy-demo.rules\nroot ok\n" if rules_differ else "") \
+        + "logrotate yes\ncron yes\n"
+    found = hostchanges.preflight(_Robot(answer), "~/rosdeploy", "demo", _h(ansible_user="root"),
+                                  _release(tmp_path), missing=("/dev/robot/motor", "/dev/video0"))
+    assert bool(found) == refused, found
+    if refused:
+        (message,) = found
+        assert "/dev/robot/motor (`devices.motor`" in message and "with its udev rule installed already" in message
