@@ -188,8 +188,7 @@ class RobotRun:
     def required_paths(self) -> tuple[str, ...]:
         """What must exist on the robot before a release may start: its devices and the
         sources of its bind mounts (Docker would create a missing one as an empty root dir)."""
-        used = {d for s in self.spec.services for d in s.devices}
-        devices = {self.host.devices[d] for d in used if d in self.host.devices}
+        devices = set(hostchanges.mapped_devices(self.spec, self.host))
         return tuple(sorted(devices | set(mount_sources(self.spec))))
 
     def wants_gpu(self) -> bool:
@@ -347,7 +346,10 @@ def preflight(state: RobotState, run: RobotRun, free_needed: int) -> list[str]:
                         f"{free_needed} MB (preflight.min_free_disk_mb)")
     by_path = {path: name for name, path in run.host.devices.items()}
     mounts = mount_sources(run.spec)
+    later = hostchanges.made_by_rules(run.host) if run.ctx.host_changes else frozenset()
     for path in state.missing_devices:
+        if path in later:
+            continue     # its udev rule may create it: checked after the rules are installed and triggered
         if path in by_path or path not in mounts:
             problems.append(f"device {path} (`devices.{by_path.get(path, '?')}` in the inventory) is missing "
                             "on the robot: plug it in / check its udev rule, or fix the inventory")
@@ -412,7 +414,7 @@ def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
     problems = preflight(state, run, run.spec.min_free_disk_mb)
     if run.ctx.host_changes:
         problems += hostchanges.preflight(run.t, run.root, run.spec.project, run.host, release,
-                                          run.ctx.become_password)
+                                          run.ctx.become_password, state.missing_devices)
     if problems:
         return run.result(FAILED, running_release=old, reason="preflight: " + "; ".join(problems), **base)
     holder = run.lock(run.guard_arm(state, release))
@@ -445,9 +447,12 @@ def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: di
         run.t.check(restarts.link_store(run.root, run.spec.project, new), "upload")
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before switching", **base)
-    if not _host_changes(run, new):
+    if not _host_changes(run, new, hostchanges.mapped_devices(run.spec, run.host)):
+        why = run.steps[-1].detail
+        if old in state.releases:
+            _host_changes(run, old)    # the running release's rules and rotation again
         return run.result(FAILED, running_release=old, reason="host changes failed, nothing restarted: "
-                          + run.steps[-1].detail, **base)
+                          + why, **base)
     flavor = state.flavor or "v2"
     verdict = run.start(new, flavor)
     if verdict.ok:
@@ -484,12 +489,14 @@ def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict
                       + back.reason, **failed)
 
 
-def _host_changes(run: RobotRun, release: str) -> bool:
-    """Install `release`'s host changes (udev rules); a step with the robot's notes either way."""
+def _host_changes(run: RobotRun, release: str, devices: tuple[str, ...] = ()) -> bool:
+    """Install `release`'s host changes (udev rules, log rotation), then check that `devices`
+    resolve; a step with the robot's notes either way."""
     if not run.ctx.host_changes:
         return True
     began = time.monotonic()
-    ok, notes = hostchanges.install(run.t, run.root, run.spec.project, release, run.host, run.ctx.become_password)
+    ok, notes = hostchanges.install(run.t, run.root, run.spec.project, release, run.host, run.ctx.become_password,
+                                    devices)
     if not ok or notes != hostchanges.NOTHING:
         run.steps.append(Step("host changes", time.monotonic() - began, ok, notes))
     return ok

@@ -19,7 +19,7 @@ import shlex
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
-from rosdeploy import ready as readiness, schema_quick, window as windows, yamlsrc
+from rosdeploy import ready as readiness, rotation, schema_quick, window as windows, yamlsrc
 from rosdeploy.errors import FleetSpecError, InputError, Problem
 from rosdeploy.images.refs import DIGEST_RE, parse_rate
 from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, ImagePolicy, RobotFile, RollbackPolicy,
@@ -568,6 +568,17 @@ def _cpus(r: Reader, kp: KeyPath, value: Any) -> Any:
     return value
 
 
+def _rotate_every(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """logging.rotate_every: a period cron keeps evenly (rotation.py), or off (None)."""
+    if value is False or value == "off":     # YAML 1.1 reads a bare `off` as false
+        return None
+    seconds = _duration(r, kp, value)
+    if rotation.cron_schedule(seconds) is None:
+        raise Invalid(f"{value!r} is not a period cron can keep (it runs at most once a minute, on the "
+                      f"clock): use one of {rotation.PERIODS}, or off")
+    return seconds
+
+
 def _deploy_root(r: Reader, kp: KeyPath, value: Any) -> Any:
     """deploy_root: the remote-path pattern (no shell metacharacters), and no `..` anywhere."""
     value = _string(REMOTE_PATH_RE, "path on the robot (absolute or under ~)")(r, kp, value)
@@ -651,7 +662,7 @@ SECTIONS: dict[str, Mapping[str, Convert]] = {
             "connect_timeout": _duration, "command_timeout": _duration,
             "persist": _duration},
     "ros": {"rmw": _enum("fastdds", "cyclonedds"), "network_mode": _enum("host", "bridge"), "shm_size": _size},
-    "logging": {"max_size": _size, "max_file": _integer(1)},
+    "logging": {"max_size": _size, "max_file": _integer(1), "rotate_every": _rotate_every},
     "preflight": {"min_free_disk_mb": _integer(0)},
     "health": {"timeout": _duration, "stable": _duration, "interval": _duration,
                "topic_window": _duration, "probe_service": _string(NAME_RE, "service name")},
@@ -845,6 +856,7 @@ def _build(doc: Doc, top: dict) -> FleetSpec:
         rmw=ros.get("rmw", "fastdds"), network_mode=ros.get("network_mode", "host"),
         shm_size=ros.get("shm_size", "512m"),
         log_max_size=logging.get("max_size", "10m"), log_max_file=logging.get("max_file", 3),
+        log_rotate_every=logging.get("rotate_every", rotation.DEFAULT_EVERY),
         templates=top.get("templates"), deploy_root=top.get("deploy_root", "~/rosdeploy"),
         known_hosts=ssh.get("known_hosts"), ssh_config=ssh.get("config"),
         connect_timeout=ssh.get("connect_timeout", 10.0), command_timeout=ssh.get("command_timeout", 600.0),

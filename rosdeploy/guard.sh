@@ -94,10 +94,18 @@ entry() {
     "$run" "$(clean "$by")" "$flavor" "$1" "$previous" "$(clean "$4")" "$rel" "$3" "$back" "$run" "$(date -u +%Y-%m-%dT%H:%M:%S+00:00)"
 }
 
+# host_back RELEASE: its udev rules and log rotation again (rosdeploy/scripts/hostchanges-restore.sh,
+# which the controller's host-changes step left in $dir/.host/)
+host_back() {
+  [ ! -f "$dir/.host/restore.sh" ] || sh "$dir/.host/restore.sh" "$dir" "$1" >> "$g/log" 2>&1 \
+    || say "host changes of $1 not restored (see above)"
+}
+
 revert() {
   if [ -n "$previous" ] && [ -d "$dir/releases/$previous" ]; then
     say "starting $previous again ($1)"
     sh "$g/up.sh" "$root" "$project" "$previous" "$flavor" together "" >> "$g/log" 2>&1
+    host_back "$previous"
     if wait_ok "$previous" "$gate"; then result=active; else result=unhealthy; fi
     entry guard-rollback "$previous" "$result" "$1" "$target" >> "$dir/history.jsonl"
   else
@@ -117,6 +125,7 @@ act() {
   root=${dir%/*}
   say "acting on run $run: $reason (mode $mode, phase $phase)"
   if [ "$phase" = prepare ]; then
+    host_back "$previous"     # installed after the upload, before anything started
     entry guard-rollback "$previous" unchanged "$reason before $target started: nothing changed" >> "$dir/history.jsonl"
   elif [ "$mode" = finish ]; then
     if gate_ok; then

@@ -1,12 +1,16 @@
 """Host changes: what a release changes outside its own directory, with the right privileges.
 
-Today that is the udev rules (99-rosdeploy.rules): installed to /etc/udev/rules.d as
-99-rosdeploy-<project>.rules, syntax-checked with `udevadm verify` where it exists, the
-rules reloaded and the subsystems triggered where udev runs. A robot without udev (a
-container, the sim) gets a note, not a failure: the rules still land.
+- the udev rules (99-rosdeploy.rules): installed to /etc/udev/rules.d as
+  99-rosdeploy-<project>.rules, syntax-checked with `udevadm verify` where it exists, the
+  rules reloaded and the subsystems triggered where udev runs. A robot without udev (a
+  container, the sim) gets a note, not a failure: the rules still land. Then every mapped
+  device must resolve before anything restarts (a device the new rules create included).
+- the ROS log rotation (rotation.py): logrotate.conf as /etc/logrotate.d/rosdeploy-<project>,
+  logrotate.cron as /etc/cron.d/rosdeploy-<project>.
 
-The file installed is always the one in a release directory, so host changes are versioned
-with the release: a rollback installs the kept release's rules again.
+The files installed are always those of a release directory, so host changes are versioned
+with the release: a rollback installs the kept release's again. Nothing that differs from
+what is installed: no root needed (the comparison runs as the SSH user).
 
 Privileges: as root directly; as another user through sudo, as Ansible's become does:
 `ansible_become` (false refuses), `ansible_become_user` (must be root),
@@ -17,15 +21,29 @@ exactly what is missing and how to grant it.
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from rosdeploy.commands import _PROLOGUE, Command, script
-from rosdeploy.model import Host, RenderedRelease
+from rosdeploy import rotation
+from rosdeploy.commands import Command, load, script
+from rosdeploy.model import FleetSpec, Host, RenderedRelease
 
 RULES_FILE = "99-rosdeploy.rules"
 RULES_DIR = "/etc/udev/rules.d"
-NOTHING = "no udev rules"     # what install says when there was nothing to install or remove
+NOTHING = "host changes unchanged"     # what install says when nothing differed (and no device to check)
+NO_ROOT = 3                             # ... when something differs and root is refused (Become.refused)
+MISSING_DEVICE = 7                      # exit status of the install script when a mapped device is missing
+
+
+# Run as the SSH user (with the scripts' prologue): what differs, whether root is reachable, the tools.
+CHECK_SCRIPT = load("hostchanges-check.sh")
+# Run as the SSH user: become root for ROOT_SCRIPT when something differs, then check the devices.
+INSTALL_SCRIPT = load("hostchanges-install.sh")
+# Run as root: install or remove the files, verify, reload and trigger udev.
+ROOT_SCRIPT = load("hostchanges-root.sh")
+# Run by the deploy guard (guard.sh) when it goes back to a release: left on the robot by INSTALL_SCRIPT.
+RESTORE_SCRIPT = load("hostchanges-restore.sh")
 
 
 @dataclass(frozen=True)
@@ -47,7 +65,7 @@ def become(host: Host, asked_password: str | None = None) -> Become:
                                   "ansible_become: true (and grant sudo), connect as root, or pass --no-host-changes")
     target = str(v.get("ansible_become_user") or "root")
     if target != "root":
-        return Become("", refused=f"ansible_become_user is {target!r}: installing udev rules needs root")
+        return Become("", refused=f"ansible_become_user is {target!r}: host changes need root")
     method = str(v.get("ansible_become_method") or "sudo")
     if method != "sudo":
         return Become("", refused=f"ansible_become_method {method!r} is not supported: use sudo")
@@ -59,120 +77,116 @@ def rules_name(project: str) -> str:
     return f"99-rosdeploy-{project}.rules"
 
 
+def targets(project: str) -> tuple[str, str, str]:
+    """Where the release's udev rules, rotation config and rotation schedule are installed."""
+    name = rotation.installed_name(project)
+    return (f"{RULES_DIR}/{rules_name(project)}", f"{rotation.CONF_DIR}/{name}", f"{rotation.CRON_DIR}/{name}")
+
+
+def has_content(text: str) -> bool:
+    """A file of only comments and blank lines installs nothing (and removes what is installed)."""
+    return any(line.strip() and not line.lstrip().startswith("#") for line in text.splitlines())
+
+
+def _content(release: RenderedRelease, name: str) -> str:
+    return next((f.content for f in release.files if f.name == name), "")
+
+
 def has_rules(release: RenderedRelease) -> bool:
-    content = next((f.content for f in release.files if f.name == RULES_FILE), "")
-    return any(line.strip() and not line.lstrip().startswith("#") for line in content.splitlines())
+    return has_content(_content(release, RULES_FILE))
+
+
+def schedule(release: RenderedRelease) -> str | None:
+    """The rotation's cron line, or None when the release has no schedule (rotate_every: off)."""
+    jobs = [line for line in _content(release, rotation.CRON_FILE).splitlines()
+            if line.strip() and not line.startswith("#") and "=" not in line.split(" ", 1)[0]]
+    return jobs[0] if jobs else None
+
+
+def wanted(release: RenderedRelease, project: str) -> dict[str, str | None]:
+    """Target -> the content the release installs there (None: the release wants none)."""
+    rules, conf, cron = targets(project)
+    rotates = schedule(release) is not None
+    return {rules: _content(release, RULES_FILE) if has_rules(release) else None,
+            conf: _content(release, rotation.CONF_FILE) if rotates else None,
+            cron: _content(release, rotation.CRON_FILE) if rotates else None}
 
 
 def describe(release: RenderedRelease, project: str) -> tuple[str, ...]:
     """What `plan` lists under host changes."""
-    if not has_rules(release):
-        return ()
-    return (f"install udev rules {RULES_DIR}/{rules_name(project)} (reload udev, trigger subsystems)",)
+    rules, conf, cron = targets(project)
+    out = []
+    if has_rules(release):
+        out.append(f"install udev rules {rules} (reload udev, trigger subsystems)")
+    job = schedule(release)
+    if job is not None:
+        out.append(f"install log rotation {conf}, run by {cron} (`{' '.join(job.split()[:5])}`, as root, "
+                   f"state {rotation.state_file(project)})")
+    return tuple(out)
 
 
-# Run as the SSH user: say whether the rules differ from what is installed and whether root
-# is reachable (sudo -n/-S true), without changing anything.
-CHECK_SCRIPT = _PROLOGUE + r'''
-mode=$1; want=$2; name=$3
-installed=$RULES_DIR/$name
-[ -f "$installed" ] && echo "installed yes" || echo "installed no"
-case $mode in
-  direct) [ "$(id -u)" = 0 ] && echo "root ok" || echo "root not-root" ;;
-  sudo-n)
-    if ! command -v sudo >/dev/null 2>&1; then echo "root no-sudo"
-    elif err=$(sudo -n true 2>&1); then echo "root ok"
-    else echo "root denied $err" | tr '\n' ' '; echo; fi ;;
-  sudo-S)
-    if ! command -v sudo >/dev/null 2>&1; then echo "root no-sudo"
-    elif err=$(sudo -S -p '' true 2>&1); then echo "root ok"
-    else echo "root denied $err" | tr '\n' ' '; echo; fi ;;
-esac
-command -v udevadm >/dev/null 2>&1 && echo "udevadm yes" || echo "udevadm no"
-echo "want $want"
-'''.replace("$RULES_DIR", RULES_DIR)
+def mapped_devices(spec: FleetSpec, host: Host) -> tuple[str, ...]:
+    """The robot paths of the devices the services use (what must resolve before anything restarts)."""
+    used = {d for s in spec.services for d in s.devices}
+    return tuple(sorted(host.devices[d] for d in used if d in host.devices))
 
 
-def check_command(root: str, project: str, how: Become, wanted: bool) -> Command:
-    cmd = script("host-check", CHECK_SCRIPT, root, project, how.mode, "yes" if wanted else "no", rules_name(project))
-    return _with_password(cmd, how)
+def made_by_rules(host: Host) -> frozenset[str]:
+    """The /dev paths this robot's udev rules create: checked after the trigger, not before."""
+    return frozenset(f"/dev/{u.symlink}" for u in host.udev)
 
 
-def problems(stdout: str, host: Host, how: Become, wanted: bool) -> list[str]:
-    """Why the host changes cannot be made; [] when they can, or when none are needed."""
-    facts = dict(line.split(" ", 1) for line in stdout.splitlines() if " " in line)
-    if not wanted and facts.get("installed") != "yes":
-        return []
+def check_command(root: str, project: str, how: Become, want: dict[str, str | None]) -> Command:
+    pairs = [item for target, text in want.items()
+             for item in (target, hashlib.sha256(text.encode()).hexdigest() if text is not None else "-")]
+    return _with_password(script("host-check", CHECK_SCRIPT, root, project, how.mode, *pairs), how)
+
+
+def _facts(stdout: str) -> tuple[list[str], dict[str, str]]:
+    """(targets that differ, the other `key value` lines)."""
+    lines = [line.split(" ", 1) for line in stdout.splitlines() if " " in line]
+    return [v for k, v in lines if k == "differs"], {k: v for k, v in lines if k != "differs"}
+
+
+def problems(stdout: str, host: Host, how: Become, rotates: bool) -> list[str]:
+    """Why the host changes cannot be made; [] when they can, or when none differ."""
+    differ, facts = _facts(stdout)
+    out = []
+    if rotates and facts.get("logrotate") == "no":
+        out.append(f"{host.name} has no logrotate, which the ROS log rotation runs: install it "
+                   "(`apt-get install logrotate`), or set `logging.rotate_every: off` in the fleet file")
+    if rotates and facts.get("cron") == "no":
+        out.append(f"{host.name} has no cron (/usr/sbin/cron or crond, and /etc/cron.d), which runs the ROS log "
+                   "rotation between deploys: install it (`apt-get install cron`) and start it, or set "
+                   "`logging.rotate_every: off` in the fleet file")
+    if not differ:
+        return out
+    what = f"host changes ({', '.join(differ)})"
     if how.refused:
-        return [f"host changes (udev rules): {how.refused}"]
-    root = facts.get("root", "")
+        return out + [f"{what}: {how.refused}"]
+    return out + _root_problems(facts.get("root", ""), what, host)
+
+
+def _root_problems(root: str, what: str, host: Host) -> list[str]:
     user = host.user or "the SSH user"
     if root == "ok":
         return []
     grant = (f"grant it with a sudoers entry such as `{user} ALL=(root) NOPASSWD: ALL` in /etc/sudoers.d/, "
              "set ansible_become_password (in a vault), pass --ask-become-pass, or skip them with --no-host-changes")
     if root == "no-sudo":
-        return [f"host changes (udev rules) need root, and {user} is not root and sudo is not installed: install "
-                f"sudo and {grant}"]
+        return [f"{what} need root, and {user} is not root and sudo is not installed: install sudo and {grant}"]
     if root.startswith("denied"):
         why = root.removeprefix("denied").strip()[:200]
-        return [f"host changes (udev rules) need root, and `sudo` refused {user} ({why}): {grant}"]
-    return [f"host changes (udev rules) need root, and the robot did not say whether {user} can have it: {grant}"]
+        return [f"{what} need root, and `sudo` refused {user} ({why}): {grant}"]
+    return [f"{what} need root, and the robot did not say whether {user} can have it: {grant}"]
 
 
-# Run as root (directly or through sudo): install the release's rules if they differ, keep the
-# previous ones for `restore`, verify, reload, trigger. Notes go to stdout, one per line.
-INSTALL_SCRIPT = r'''
-set -u
-src=$1; name=$2; shift 2
-dst=$RULES_DIR/$name
-mkdir -p $RULES_DIR
-if [ ! -s "$src" ] || ! grep -qv '^[[:space:]]*\(#.*\)\{0,1\}$' "$src"; then
-  if [ -f "$dst" ]; then rm -f "$dst"; echo "removed $dst"; changed=1; else echo "no udev rules"; exit 0; fi
-elif [ -f "$dst" ] && cmp -s "$src" "$dst"; then
-  echo "udev rules unchanged"; changed=0
-else
-  cp "$src" "$dst.tmp" && chmod 0644 "$dst.tmp" && mv "$dst.tmp" "$dst" || exit 5
-  echo "installed $dst"; changed=1
-fi
-if command -v udevadm >/dev/null 2>&1; then
-  if [ -f "$dst" ] && udevadm verify --help >/dev/null 2>&1; then
-    udevadm verify "$dst" >/dev/null 2>&1 && echo "udevadm verify: ok" || { echo "udevadm verify failed"; exit 6; }
-  fi
-  if [ -S /run/udev/control ]; then
-    if [ "$changed" = 0 ]; then :
-    elif udevadm control --reload-rules && udevadm trigger --action=change "$@" && udevadm settle -t 10; then
-      echo "udev rules reloaded"
-    else echo "udev reload failed"; fi
-  else
-    echo "note: udevd is not running here; rules installed, not loaded"
-  fi
-else
-  echo "note: no udev on this robot (a container?); rules installed, not loaded"
-fi
-'''.replace("$RULES_DIR", RULES_DIR)
-
-# As the SSH user: resolve the release's rules path (~ is this user's home), then become root.
-INSTALL_OUTER = _PROLOGUE + r'''
-release=$1; mode=$2; name=$3; inner=$4; shift 4
-src=$dir/releases/$release/$RULES_FILE
-[ -d "$dir/releases/$release" ] || { echo "release $release is not on this robot" >&2; exit 4; }
-# Nothing to install and nothing to remove: no need for root (a robot without sudo deploys as before).
-if ! grep -qv '^[[:space:]]*\(#.*\)\{0,1\}$' "$src" 2>/dev/null && [ ! -f "$RULES_DIR/$name" ]; then
-  echo "no udev rules"; exit 0
-fi
-case $mode in
-  direct) exec sh -c "$inner" rosdeploy "$src" "$name" "$@" ;;
-  sudo-n) exec sudo -n sh -c "$inner" rosdeploy "$src" "$name" "$@" ;;
-  sudo-S) exec sudo -S -p '' sh -c "$inner" rosdeploy "$src" "$name" "$@" ;;
-esac
-'''.replace("$RULES_FILE", RULES_FILE).replace("$RULES_DIR", RULES_DIR)
-
-
-def install_command(root: str, project: str, release: str, how: Become, subsystems: tuple[str, ...]) -> Command:
-    triggers = tuple(f"--subsystem-match={s}" for s in sorted(set(subsystems)))
-    cmd = script("host-install", INSTALL_OUTER, root, project, release, how.mode, rules_name(project),
-                 INSTALL_SCRIPT, *triggers)
+def install_command(root: str, project: str, release: str, how: Become, subsystems: tuple[str, ...],
+                    devices: tuple[str, ...] = ()) -> Command:
+    """Install `release`'s host changes; then check that `devices` resolve."""
+    rules, conf, cron = targets(project)
+    cmd = script("host-install", INSTALL_SCRIPT, root, project, release, how.mode or "refused", ROOT_SCRIPT,
+                 ",".join(sorted(set(subsystems))), rules, conf, cron, rotation.STATE_DIR, RESTORE_SCRIPT, *devices)
     return _with_password(cmd, how)
 
 
@@ -183,22 +197,48 @@ def _with_password(cmd: Command, how: Become) -> Command:
     return Command(cmd.argv, stdin=(how.password + "\n").encode(), timeout=cmd.timeout, label=cmd.label)
 
 
+def missing_devices(stdout: str, host: Host,
+                    when: str = "after the udev rules were installed and triggered") -> list[str]:
+    """A message per mapped device that did not resolve (`missing-device PATH` lines)."""
+    names = {path: name for name, path in host.devices.items()}
+    rules = {f"/dev/{u.symlink}": u for u in host.udev}
+    out = []
+    for path in (line.split(" ", 1)[1] for line in stdout.splitlines() if line.startswith("missing-device ")):
+        rule = rules.get(path)
+        made = (f"the udev rule SYMLINK+=\"{rule.symlink}\" for {rule.vendor}:{rule.product}"
+                + (f" serial {rule.serial}" if rule.serial else "") + " (`udev` in the inventory) did not create it"
+                if rule else "no udev rule of this robot creates it")
+        out.append(f"device {path} (`devices.{names.get(path, '?')}` in the inventory) is missing on {host.name} "
+                   f"{when}: {made}; plug it in, check the rule's ids "
+                   "(`udevadm info -a -n <device>`), or fix the inventory")
+    return out
+
+
 # ------------------------------------------------------------- the deploy's calls
 
 def preflight(t: Any, root: str, project: str, host: Host, release: RenderedRelease,
-              password: str | None = None) -> list[str]:
-    """Per robot, before anything changes: can the host changes be made? (one round trip)"""
-    how, wanted = become(host, password), has_rules(release)
-    out = t.run(check_command(root, project, how, wanted))
-    return problems(out.stdout, host, how, wanted)
-
-
-def install(t: Any, root: str, project: str, release: str, host: Host, password: str | None = None) -> tuple[bool, str]:
-    """Install `release`'s host changes: (ok, notes). Nothing to do costs one round trip, no root."""
-    subsystems = tuple(u.subsystem for u in host.udev)
+              password: str | None = None, missing: tuple[str, ...] = ()) -> list[str]:
+    """Per robot, before anything changes: can the host changes be made? (one round trip)
+    `missing`: mapped devices not there now. One a udev rule makes waits for the trigger,
+    unless the rules are already installed as they are: then no trigger will come."""
     how = become(host, password)
-    if how.refused:
+    out = t.run(check_command(root, project, how, wanted(release, project)))
+    found = problems(out.stdout, host, how, schedule(release) is not None)
+    if targets(project)[0] not in _facts(out.stdout)[0]:
+        lines = "".join(f"missing-device {p}\n" for p in missing if p in made_by_rules(host))
+        found += missing_devices(lines, host, when="with its udev rule installed already")
+    return found
+
+
+def install(t: Any, root: str, project: str, release: str, host: Host, password: str | None = None,
+            devices: tuple[str, ...] = ()) -> tuple[bool, str]:
+    """Install `release`'s host changes, then check that `devices` resolve: (ok, notes).
+    Nothing that differs costs one round trip and no root."""
+    how = become(host, password)
+    out = t.run(install_command(root, project, release, how, tuple(u.subsystem for u in host.udev), devices))
+    if how.refused and out.exited == NO_ROOT:
         return False, how.refused
-    out = t.run(install_command(root, project, release, how, subsystems))
-    notes = "; ".join(line.strip() for line in (out.stdout + out.stderr).splitlines() if line.strip())
-    return out.ok, notes
+    missing = missing_devices(out.stdout, host) if out.exited == MISSING_DEVICE else []
+    lines = [line.strip() for line in (out.stdout + out.stderr).splitlines()
+             if line.strip() and not line.startswith("missing-device ")]
+    return out.ok, "; ".join(missing + lines)

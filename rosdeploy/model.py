@@ -167,6 +167,7 @@ class FleetSpec:
     shm_size: str = "512m"
     log_max_size: str = "10m"
     log_max_file: int = 3
+    log_rotate_every: float | None = 300.0   # seconds between runs of the ROS log rotation (None: off; rotation.py)
     templates: str | None = None    # a directory whose files override the built-in templates
     deploy_root: str = "~/rosdeploy"  # on the robot; "~" is the SSH user's home
     known_hosts: str | None = None  # None: ~/.ssh/known_hosts

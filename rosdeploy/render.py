@@ -24,7 +24,7 @@ from typing import Any, Iterable, Mapping
 import jinja2
 import yaml
 
-from rosdeploy import restarts
+from rosdeploy import restarts, rotation
 from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError
 from rosdeploy.files import FileRenderer
@@ -40,7 +40,8 @@ TEMPLATE_DIR = Path(__file__).parent / "templates"
 COMPOSE_FILE = "compose.yml"
 ENV_FILE = ".env"
 UDEV_FILE = "99-rosdeploy.rules"
-LOGROTATE_FILE = "logrotate.conf"
+LOGROTATE_FILE = rotation.CONF_FILE
+ROTATION_FILE = rotation.CRON_FILE
 
 # rmw key in the fleet file -> (RMW_IMPLEMENTATION, DDS profile file, env vars pointing at it).
 # Fast DDS 2.x (Humble, Jazzy) reads FASTRTPS_DEFAULT_PROFILES_FILE; 3.x reads
@@ -325,7 +326,8 @@ class Renderer:
         self.override = self._override_dir()
         self.env = self._environment()
         outputs = {COMPOSE_FILE: "compose.yml.j2", ENV_FILE: "env.j2", self.dds_file: f"{self.dds_file}.j2",
-                   LOGROTATE_FILE: "logrotate.conf.j2", UDEV_FILE: "udev.rules.j2"}
+                   LOGROTATE_FILE: "logrotate.conf.j2", UDEV_FILE: "udev.rules.j2",
+                   ROTATION_FILE: "logrotate.cron.j2"}
         outputs.update(self._user_only_templates(outputs.values()))
         self.templates = {out: self._compile(name) for out, name in sorted(outputs.items())}
         compose_file = self.templates[COMPOSE_FILE].filename or ""
@@ -485,6 +487,7 @@ class Renderer:
             "image_vars": self.image_vars, "udev": self._udev(host, problems), "dds_source": f"./{self.dds_file}",
             "logs_glob": f"{self._deploy_root(host, variables)}/{spec.project}/logs/*/*.log",
             **self._tunables(host, variables, problems),
+            **rotation.context(spec.project, spec.log_rotate_every),
         }
 
     def _service(self, st: _Static, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> ServiceView:

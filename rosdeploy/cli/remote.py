@@ -107,7 +107,7 @@ def _add_run_args(p: Parser) -> None:
                         "(default: fail at once)")
     p.add_argument("--break-lock", action="store_true", help="remove a stale lock left by a dead run")
     p.add_argument("--no-host-changes", action="store_true",
-                   help="do not install udev rules on the robots (warns: their /dev/robot/* names may be stale)")
+                   help="do not install udev rules or the log rotation schedule on the robots (warns)")
     p.add_argument("--ask-become-pass", action="store_true",
                    help="ask for the sudo password used for host changes on robots not reached as root")
 
@@ -152,8 +152,9 @@ def context(args: argparse.Namespace, spec: FleetSpec, progress: Callable[[str, 
 def host_change_args(args: argparse.Namespace, out: Output) -> None:
     """--no-host-changes warns; --ask-become-pass asks once, before any robot is touched."""
     if getattr(args, "no_host_changes", False):
-        out.warn("--no-host-changes: udev rules are not installed or restored on any robot; the /dev/robot/* "
-                 "names they make may be missing or stale")
+        out.warn("--no-host-changes: udev rules and the ROS log rotation schedule are not installed or restored "
+                 "on any robot; the /dev/robot/* names may be missing or stale, and the logs rotate on the old "
+                 "schedule or not at all")
     if getattr(args, "ask_become_pass", False):
         if not out.interactive:
             raise InputError("--ask-become-pass needs a terminal to ask on; put ansible_become_password in a vault")

@@ -27,7 +27,7 @@ from rosdeploy.sim.model import (REGISTRY_HOST, RobotStatus, SimFleet, SimPaths,
                                  container_of, resolve_home, robot_for, robot_index)
 from rosdeploy.sim.proc import Progress, docker, engine_up, quiet, require_engine
 from rosdeploy.sim.robots import (Container, copy_host_key, create_robot, current_host_key, remove_containers,
-                                  remove_volumes, robot_ctl, sim_containers, start_container, wait_ready)
+                                  remove_volumes, robot_ctl, robot_exec, sim_containers, start_container, wait_ready)
 
 MAX_ROBOTS = 90    # domain IDs 11..100: IDs up to 101 are valid on every Linux host
 
@@ -289,5 +289,8 @@ def reset(home: Path | str | None = None) -> SimFleet:
 def _reset_robot(paths: SimPaths, robot: SimRobot) -> None:
     heal(robot.name)
     robot_ctl(robot.name, "reset")
+    # rosdeploy's host changes (hostchanges.py): robot-ctl, in the image, predates them.
+    robot_exec(robot.name, ["sh", "-c", "rm -f /etc/udev/rules.d/99-rosdeploy-* /etc/cron.d/rosdeploy-* "
+                            "/etc/logrotate.d/rosdeploy-* /var/lib/logrotate/rosdeploy-*"], check=True)
     if current_host_key(robot.name) != public_key(paths.host_key(robot.name)):
         restore_host_key(robot.name, paths.home)

@@ -5,6 +5,7 @@ with the right privileges, and log rotation that runs without rosdeploy.
 """
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -146,6 +147,8 @@ def test_a_non_root_user_without_sudo_is_refused_in_preflight_and_keeps_running(
     shell = RobotShell(fleet, "robot3")
     before = _ids(shell)
     provision.sudo("robot3", present=False)
+    # A host change that differs from what is installed (nothing that differs needs no root).
+    fleet_file = write_fleet(tmp_path, inventory, logging={"rotate_every": "2m"})
     try:
         run = deploy(fleet_file, "--limit", "robot3", "--version", "1.1.0")
     finally:
@@ -157,3 +160,95 @@ def test_a_non_root_user_without_sudo_is_refused_in_preflight_and_keeps_running(
 
     skipped = deploy(fleet_file, "--limit", "robot3", "--version", "1.1.0", "--no-host-changes")
     assert skipped.code == EXIT_OK and "--no-host-changes" in skipped.stderr
+
+
+# ------------------------------------------------------------- log rotation (item 3), devices (item 2)
+
+CRON, CONF = "/etc/cron.d/rosdeploy-demo", "/etc/logrotate.d/rosdeploy-demo"
+PERIOD = 60    # logging.rotate_every: 1m, cron's floor
+
+
+def _rotation_fleet(fleet, tmp_path: Path, **fleet_changes) -> Path:
+    """robot1 as root, robot2 as `robot` (through sudo -n); logs rotate past 1 KB, every minute."""
+    inventory = write_inventory(fleet, tmp_path, logrotate_size="1k")
+    data = yaml.safe_load(inventory.read_text())
+    data["all"]["children"]["sim"]["hosts"]["robot1"]["ansible_user"] = "root"
+    inventory.write_text(yaml.safe_dump(data, sort_keys=False))
+    return write_fleet(tmp_path, inventory, logging={"rotate_every": "1m"}, **fleet_changes)
+
+
+def test_ros_logs_are_rotated_by_the_robots_own_schedule_with_rosdeploy_not_running(fleet, tmp_path: Path) -> None:
+    fleet_file = _rotation_fleet(fleet, tmp_path)
+    plan = rosdeploy("--json", "plan", fleet_file, "--limit", "robot1")
+    assert any(f"run by {CRON} (`* * * * *`" in c for c in plan.doc["robots"][0]["host_changes"]), plan.doc
+    run = deploy(fleet_file, "--limit", "robot1,robot2")
+    assert run.code == EXIT_OK, run.stderr
+    homes = {"robot1": "/root", "robot2": "/home/robot"}
+    shells = {name: RobotShell(fleet, name) for name in homes}
+    logs = {}
+    for name, shell in shells.items():
+        step = next(s for s in run.host(name)["steps"] if s["name"] == "host changes")
+        assert f"installed {CRON}" in step["detail"] and "devices resolve: /dev/robot/motor" in step["detail"], step
+        assert shell.run(f"stat -c '%U %a' {CRON} {CONF}").split() == ["root", "644", "root", "644"]
+        logs[name] = f"{homes[name]}/rosdeploy/demo/logs/driver/big.log"
+        # Past the 1 KB cap, owned by the container user: rosdeploy has exited, only cron is left.
+        shell.run(f"head -c 4096 /dev/zero | tr '\\0' x > {logs[name]} && chown 1000:1000 {logs[name]}")
+    inodes = {name: shell.run(f"stat -c %i {logs[name]}") for name, shell in shells.items()}
+    began = time.monotonic()
+    rotated: dict[str, float] = {}
+    while len(rotated) < len(shells) and time.monotonic() - began < 3 * PERIOD:
+        for name, shell in shells.items():
+            if name not in rotated and shell.run(f"test -e {logs[name]}.1.gz && echo yes || true").strip():
+                rotated[name] = time.monotonic() - began
+        time.sleep(2)
+    assert set(rotated) == set(shells), f"not rotated within {3 * PERIOD} s: {set(shells) - set(rotated)}"
+    assert max(rotated.values()) <= PERIOD + 15, rotated      # one period, plus cron's start and logrotate's run
+    for name, shell in shells.items():
+        # copytruncate: the same file, emptied in place (a node writing to it keeps its descriptor)
+        assert shell.run(f"stat -c '%i %s' {logs[name]}").split() == [inodes[name].strip(), "0"], name
+        assert "big.log" in shell.run("cat /var/lib/logrotate/rosdeploy-demo.status"), name
+
+
+def test_a_rollback_restores_the_previous_rotation_schedule(fleet, tmp_path: Path) -> None:
+    fleet_file = _rotation_fleet(fleet, tmp_path)
+    assert deploy(fleet_file, "--limit", "robot1").code == EXIT_OK
+    shell = RobotShell(fleet, "robot1")
+    assert "* * * * * root logrotate" in shell.run(f"cat {CRON}")
+    slower = write_fleet(tmp_path, Path(yaml.safe_load(fleet_file.read_text())["inventory"]),
+                         logging={"rotate_every": "10m"})
+    assert deploy(slower, "--limit", "robot1", "--version", "1.1.0").code == EXIT_OK
+    assert "*/10 * * * * root logrotate" in shell.run(f"cat {CRON}")
+    back = rosdeploy("--json", "rollback", slower, "--yes", "--limit", "robot1")
+    assert back.code == EXIT_OK, back.stderr
+    assert "* * * * * root logrotate" in shell.run(f"cat {CRON}"), "the rollback restores the kept release's schedule"
+    off = write_fleet(tmp_path, Path(yaml.safe_load(fleet_file.read_text())["inventory"]),
+                      logging={"rotate_every": "off"})
+    skipped = deploy(off, "--limit", "robot1", "--version", "1.1.0", "--no-host-changes")
+    assert skipped.code == EXIT_OK and "--no-host-changes" in skipped.stderr
+    assert "* * * * * root logrotate" in shell.run(f"cat {CRON}"), "--no-host-changes leaves the schedule alone"
+    assert deploy(off, "--limit", "robot1").code == EXIT_OK      # 1.0.0 again, a release of its own
+    assert shell.run(f"ls {CRON} {CONF} 2>/dev/null || true") == "", "rotate_every: off removes the schedule"
+
+
+def test_a_device_the_new_rules_should_create_is_checked_after_the_trigger(fleet, tmp_path: Path) -> None:
+    inventory = write_inventory(fleet, tmp_path)
+    driver = _services(write_fleet(tmp_path, inventory))["driver"]
+    fleet_file = write_fleet(tmp_path, inventory)
+    assert deploy(fleet_file, "--limit", "robot3").code == EXIT_OK
+    shell = RobotShell(fleet, "robot3")
+    before = _ids(shell)
+    data = yaml.safe_load(inventory.read_text())
+    data["all"]["vars"]["udev"].append({"symlink": "robot/lidar", "subsystem": "tty", "vendor": "10c4",
+                                        "product": "ea60"})
+    data["all"]["children"]["sim"]["hosts"]["robot3"]["devices"]["lidar"] = "/dev/robot/lidar"
+    inventory.write_text(yaml.safe_dump(data, sort_keys=False))
+    with_lidar = write_fleet(tmp_path, inventory,
+                             services={"driver": {**driver, "devices": [*driver.get("devices", []), "lidar"]}})
+    run = deploy(with_lidar, "--limit", "robot3", "--version", "1.1.0")
+    result = run.host("robot3")
+    # Preflight let it through (a udev rule creates it); the sim has no udev, so after the
+    # install it is still missing: refused before anything restarts, the old rules back.
+    assert result["outcome"] == "failed" and "host changes failed, nothing restarted" in result["reason"], result
+    assert "/dev/robot/lidar (`devices.lidar`" in result["reason"] and 'SYMLINK+="robot/lidar"' in result["reason"]
+    assert _ids(shell) == before and versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"}
+    assert "robot/lidar" not in _rules(shell), "the running release's rules are installed again"

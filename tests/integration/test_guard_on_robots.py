@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import yaml
 
 from rosdeploy import sim as simulator
 from rosdeploy.deploy import PAUSE_BEFORE_ACTIVATE
@@ -273,3 +274,37 @@ def test_a_deploy_ends_on_a_gated_release_whatever_happens_to_its_controller(fle
     Path(os.environ.get("ROSDEPLOY_GUARD_TABLE", tmp_path / "guard-cases.md")).write_text(table + "\n")
     failed = [f"{r} {c}: {p}" for r, c, o, p in rows if p]
     assert not failed, "\n" + "\n".join(failed) + "\n\n" + table
+
+
+def test_the_guards_revert_restores_the_previous_host_changes(fleet, tmp_path: Path) -> None:
+    """A deploy that changes the udev rules and the rotation schedule, its controller killed
+    in the gate: the guard goes back, rules and schedule included (item 3 of issue 17)."""
+    base_inv = write_inventory(fleet, tmp_path)
+    data = yaml.safe_load(base_inv.read_text())
+    data["all"]["vars"]["udev"][0]["product"] = "6015"
+    other_inv = tmp_path / "inventory-other.yml"
+    other_inv.write_text(yaml.safe_dump(data, sort_keys=False))
+    files = {}
+    for name, inventory, every in (("revert", base_inv, "5m"), ("other", other_inv, "10m")):
+        (tmp_path / name).mkdir()
+        files[name] = write_fleet(tmp_path / name, inventory, health={"timeout": f"{GATE}s", "stable": "2s"},
+                                  rollback={"guard": "revert", "guard_margin": f"{MARGIN}s"},
+                                  ssh={"command_timeout": f"{COMMAND_TIMEOUT}s"}, logging={"rotate_every": every})
+    assert cli("--json", "apply", files["revert"], "--yes", "--limit", "robot2").returncode == 0
+    shell = RobotShell(fleet, "robot2")
+    host_files = "cat /etc/cron.d/rosdeploy-demo /etc/udev/rules.d/99-rosdeploy-demo.rules"
+    before = shell.run(host_files)
+    assert "*/5 * * * *" in before and "6001" in before
+    case = Case("kill", "health", "1.2.0-bad")
+    ctl = subprocess.Popen([sys.executable, "-m", "rosdeploy", "--json", "apply", str(files["other"]), "--yes",
+                            "--limit", "robot2", "--version", case.version], stdout=subprocess.DEVNULL,
+                           stderr=subprocess.PIPE, text=True, cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    lane = Lane(fleet, "robot2", files)
+    lane.fault_at(ctl, case)
+    assert "*/10 * * * *" in shell.run(host_files), "the deploy had installed its host changes"
+    ctl.send_signal(signal.SIGKILL)
+    ctl.wait()
+    problems: list[str] = []
+    outcome = lane.settle(case, shell.current(), problems)
+    assert not problems, outcome + ": " + "; ".join(problems)
+    assert shell.run(host_files) == before, "the guard's revert restores the previous rules and schedule"

@@ -1,4 +1,4 @@
-"""Issue 17 in pure code: per-service hashes, per-robot files, GPU reservation, host changes."""
+"""Issue 17 in pure code: per-service hashes, per-robot files, GPU reservation (host changes: test_hostchanges.py)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -116,47 +116,3 @@ def test_a_missing_inventory_var_names_the_robot(repo: Path) -> None:
     with pytest.raises(RenderError) as info:
         renderer.render(bare)
     assert any("camera_calibration" in p.message and "'r2'" in p.message for p in info.value.problems)
-
-
-# ------------------------------------------------------------- host changes
-
-from rosdeploy import hostchanges  # noqa: E402
-
-
-def _h(**vars: object) -> Host:
-    return Host(name="r1", groups=("all",), vars=dict(vars), address="10.0.0.1", ros_domain_id=7, source="inv:2")
-
-
-@pytest.mark.parametrize("vars,mode,refused", [
-    ({"ansible_user": "root"}, "direct", ""),
-    ({"ansible_user": "robot"}, "sudo-n", ""),
-    ({"ansible_user": "robot", "ansible_become_password": "pw-1234"}, "sudo-S", ""),
-    ({"ansible_user": "robot", "ansible_become": False}, "", "ansible_become is false"),
-    ({"ansible_user": "robot", "ansible_become_user": "ros"}, "", "needs root"),
-    ({"ansible_user": "robot", "ansible_become_method": "su"}, "", "not supported")])
-def test_become_follows_ansible_vars(vars: dict, mode: str, refused: str) -> None:
-    how = hostchanges.become(_h(**vars))
-    assert how.mode == mode and refused in how.refused and bool(how.refused) == bool(refused)
-
-
-def test_the_sudo_password_goes_on_stdin_never_in_argv() -> None:
-    how = hostchanges.become(_h(ansible_user="robot"), asked_password="s3cret-pw")
-    cmd = hostchanges.install_command("~/rosdeploy", "demo", "1.0.0-abc", how, ("tty",))
-    assert cmd.stdin == b"s3cret-pw\n" and not any("s3cret" in a for a in cmd.argv)
-    assert "--subsystem-match=tty" in cmd.argv
-
-
-@pytest.mark.parametrize("answer,words", [
-    ("root no-sudo", ["sudo is not installed", "NOPASSWD", "--no-host-changes"]),
-    ("root denied sudo: a password is required", ["a password is required", "--ask-become-pass"])])
-def test_preflight_says_what_is_missing_and_how_to_grant_it(answer: str, words: list[str]) -> None:
-    host = _h(ansible_user="robot")
-    found = hostchanges.problems(f"installed no\n{answer}\nudevadm no\nwant yes\n", host,
-                                 hostchanges.become(host), wanted=True)
-    assert len(found) == 1 and all(w in found[0] for w in words), found
-
-
-def test_no_rules_and_none_installed_need_no_root() -> None:
-    host = _h(ansible_user="robot")
-    assert hostchanges.problems("installed no\nroot no-sudo\n", host, hostchanges.become(host), wanted=False) == []
-    assert hostchanges.problems("installed yes\nroot no-sudo\n", host, hostchanges.become(host), wanted=False)

@@ -135,7 +135,7 @@ def test_files_sorted_and_images_sorted_unique() -> None:
     names = [f.name for f in rel.files]
     assert names == sorted(names)
     assert [n for n in names if not n.startswith("store/")] == [".env", "99-rosdeploy.rules", "compose.yml",
-                                                               "fastdds.xml", "logrotate.conf"]
+                                                               "fastdds.xml", "logrotate.conf", "logrotate.cron"]
     assert [n.split("/")[-1] for n in names if n.startswith("store/")] == ["fastdds.xml"]
     assert rel.images == ("registry.local:5000/demo/driver:1.0.0", "registry.local:5000/demo/perception:1.0.0")
 

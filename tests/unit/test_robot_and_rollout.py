@@ -233,7 +233,7 @@ class Robot:
         elif label == "activate":
             self.history.append(json.loads(command.argv[7]))
         elif label == "host-install":
-            out = "no udev rules\n"     # what a robot without rules answers (rosdeploy.hostchanges)
+            out = "host changes unchanged\n"     # what a robot answers when nothing differs (rosdeploy.hostchanges)
         return Result(command.label, out, "", 0, 0.0)
 
     def check(self, command, what: str = ""):
