@@ -15,6 +15,11 @@ the lock of the run that armed it, and removes its own container. The controller
 disarms it by removing the state file (activation, or the run's own end): the guard
 sees that within a second and removes itself. See docs/guard.md.
 
+A rollback (`rosdeploy rollback`, the fleet's rollback) arms one too, mode ROLLBACK, in its
+lock+state round trip; the `up` that switches re-arms it with the target. At its deadline
+(rollback_deadline) or after a reboot it completes the rollback: the target started the
+brake's way, activated, `guard-finished-rollback`.
+
 This module holds the script, the state file's format and the pure decisions made
 from it; commands.py builds the commands that arm and disarm it.
 """
