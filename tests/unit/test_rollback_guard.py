@@ -163,3 +163,30 @@ def test_a_guard_that_is_acting_keeps_a_rollback_out(tmp_path: Path) -> None:
     out = sh(commands.locked_state("~/r", "demo", {"run": "run-1"}, guard=robot_run().rollback_arm()), env)
     assert out.returncode == 3 and out.stdout.startswith("held") and "the deploy guard" in out.stdout
     assert not (tmp_path / "r/demo/.lock").exists()
+
+
+def test_the_controller_s_activation_disarms_the_rollback_s_guard_and_a_lost_run_leaves_it_armed() -> None:
+    from rosdeploy.transport import Result
+
+    class Recorder:
+        def __init__(self) -> None:
+            self.calls: list[commands.Command] = []
+
+        def run(self, command: commands.Command) -> Result:
+            self.calls.append(command)
+            return Result(command.label, "", "", 0, 0.0)
+
+        def close(self) -> None:
+            pass
+
+    run = robot_run()
+    run.t = transport = Recorder()
+    run.rollback_arm()
+    run.activate("1.0.0-a", {"event": "rollback"})
+    assert transport.calls[-1].argv[-1] == "run-1"      # finish.sh disarms this run's guard (strict)
+    lost = robot_run()
+    lost.t = transport = Recorder()
+    lost.rollback_arm()
+    lost.locked, lost.lost = True, True
+    lost.close()
+    assert transport.calls == []                          # no unlock: it would disarm the guard
