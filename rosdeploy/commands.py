@@ -107,11 +107,13 @@ def arm_args(state: str, seconds: float, files: tuple[str, ...], images: tuple[s
     return (state, str(int(seconds)), *files, *images)
 
 
-def locked_state(root: str, project: str, owner: dict, break_stale: bool = False, dead_run: str = "") -> Command:
+def locked_state(root: str, project: str, owner: dict, break_stale: bool = False, dead_run: str = "",
+                 guard: tuple[str, ...] = ()) -> Command:
     """`lock`, then the state as a rollback needs it (the lock's answer comes first, before
-    the sections): one round trip where a rollback made three (state, lock, manifest)."""
+    the sections): one round trip where a rollback made three (state, lock, manifest).
+    `guard`: arm the rollback's guard under the lock (arm_args)."""
     return script("lock+state", LOCKED_STATE_SCRIPT, root, project, json.dumps(owner, sort_keys=True),
-                  "yes" if break_stale else "no", dead_run)
+                  "yes" if break_stale else "no", dead_run, *guard)
 
 
 def unlock(root: str, project: str, token: str) -> Command:

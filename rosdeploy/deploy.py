@@ -88,6 +88,7 @@ class RobotRun:
         self.lost = False                     # the connection dropped: send nothing more
         self.armed: guard.Guard | None = None  # this run's guard, as armed
         self.guard_at: float | None = None    # when it acts (monotonic), as last (re)armed
+        self.rolling_back: dict | None = None  # a rollback's guard lines, once its target is known
 
     # ------------------------------------------------------------ plumbing
     @contextmanager
@@ -167,7 +168,42 @@ class RobotRun:
 
     def rearm(self, phase: str) -> str:
         """The argument that gives the guard its next deadline ("" when none is armed)."""
+        if self.armed and self.rolling_back is not None:
+            return self.rollback_rearm(phase)
         return commands.rearm_arg(self.ctx.run_id, self._deadline(phase)) if self.armed else ""
+
+    def rollback_arm(self) -> tuple[str, ...]:
+        """The lock+state's arguments that arm a rollback's guard, before its target is known:
+        until the switch re-arms it (rollback_rearm) it can only release the lock."""
+        if not self.guarded:
+            return ()
+        fields = {"run": self.ctx.run_id, "by": self.ctx.operator, "mode": guard.ROLLBACK,
+                  "project": self.spec.project, "gate": int(self.spec.health.timeout), "stable": 0,
+                  "keep": self.spec.rollback.keep_releases, "probe": "",
+                  "margin": int(self.spec.rollback.guard_margin)}
+        # the switch needs only up.sh and finish.sh: no probe files on the brake's wire
+        files = (guard.GUARD_SCRIPT, commands.UP_SCRIPT, commands.FINISH_SCRIPT, "", "", "")
+        self.armed = guard.Guard(run=self.ctx.run_id, by=self.ctx.operator, mode=guard.ROLLBACK,
+                                 phase="prepare", target="", previous=None, deadline=None)
+        return commands.arm_args(guard.state_text(fields), self._deadline("prepare"), files, ())
+
+    def rollback_to(self, state: RobotState, target: str, flavor: str, services: tuple[str, ...] | None) -> None:
+        """The rollback's target is known: the `up` that switches re-arms its guard with it."""
+        gated = passed_gate(state, target)
+        self.rolling_back = {"target": target, "previous": state.current or "", "flavor": flavor,
+                             "gated": "yes" if gated else "no",
+                             "services": " ".join(services if services is not None else expected_services(self.spec))}
+        if self.armed is not None:
+            self.armed = replace(self.armed, target=target, previous=state.current, gated=gated)
+
+    def rollback_rearm(self, phase: str) -> str:
+        """The rollback's deadline from its switch on (guard.rollback_deadline), with its target."""
+        seconds = guard.rollback_deadline(self.spec.command_timeout, self.spec.health.timeout,
+                                          self.spec.rollback.guard_margin)
+        self.guard_at = time.monotonic() + seconds
+        if self.armed is not None:
+            self.armed = replace(self.armed, phase=phase)
+        return guard.rearm_text(self.ctx.run_id, seconds, self.rolling_back or {})
 
     def guard_note(self) -> str:
         """What the guard on this robot will do, and when: for a run that lost the robot."""
@@ -208,10 +244,14 @@ class RobotRun:
             self.armed = None
         return holder
 
-    def lock_and_read(self) -> tuple[str | None, RobotState]:
-        """The lock and, read under it, the state a rollback needs, in one round trip."""
+    def lock_and_read(self, arm: tuple[str, ...] = ()) -> tuple[str | None, RobotState]:
+        """The lock and, read under it, the state a rollback needs, in one round trip
+        (`arm`: and the rollback's guard, see rollback_arm)."""
         holder, out = self._lock(lambda owner, dead: commands.locked_state(self.root, self.spec.project, owner,
-                                                                           self.ctx.break_lock, dead), "lock+state")
+                                                                           self.ctx.break_lock, dead, arm),
+                                 "lock+state")
+        if holder is not None:
+            self.armed = None
         return holder, parse_state(out.stdout)
 
     def _lock(self, command: Callable[[dict, str], commands.Command], step: str) -> tuple[str | None, Result]:
@@ -271,7 +311,8 @@ class RobotRun:
         release starts the compose way (its own depends_on), not by the fleet file's levels.
         """
         foreign = services is not None and set(services) != set(expected_services(self.spec))
-        rearm = "" if together else self.rearm("start")    # a new release: the guard takes the gate's deadline
+        # a new release: the guard takes the gate's deadline; a rollback's switch: its own
+        rearm = self.rearm("start") if not together or self.rolling_back is not None else ""
         levels = ((),) if together or foreign else start_levels(self.spec)
         began = time.monotonic()
         deadline = began + self.spec.health.timeout
@@ -543,6 +584,10 @@ def rollback_host(ctx: RunContext, host: Host, to_version: str | None = None,
         run.open()
         return _rollback(run, to_version, to_release)
     except ConnectError as exc:
+        run.lost = True
+        if run.locked:    # say where it was lost, and what the rollback's guard does now
+            return run.result(UNREACHABLE, reason=f"connection lost during {run.doing}{run.guard_note()} "
+                              f"({exc.detail})")
         return run.result(UNREACHABLE, reason=str(exc))
     except RemoteError as exc:
         return run.result(FAILED, reason=str(exc))
@@ -563,7 +608,7 @@ def _rollback_flavor(run: RobotRun, state: RobotState) -> str | None:
 
 
 def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> HostResult:
-    holder, state = run.lock_and_read()
+    holder, state = run.lock_and_read(run.rollback_arm())
     target = rollback_target(state, to_version, to_release)
     base = {"old_release": state.current, "new_release": target, "running_release": state.current}
     if holder is not None:
@@ -577,8 +622,9 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     if flavor is None:
         return run.result(FAILED, reason="no docker compose on the robot", **base)
     manifest = state.kept_manifests.get(target)
-    verdict = run.start(target, flavor, together=passed_gate(state, target),
-                        services=release_services(manifest) if manifest is not None else None)
+    services = release_services(manifest) if manifest is not None else None
+    run.rollback_to(state, target, flavor, services)
+    verdict = run.start(target, flavor, together=passed_gate(state, target), services=services)
     _host_changes(run, target)   # the kept release's rules, after the switch (one round trip to it)
     run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
                           "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback",

@@ -15,6 +15,11 @@ the lock of the run that armed it, and removes its own container. The controller
 disarms it by removing the state file (activation, or the run's own end): the guard
 sees that within a second and removes itself. See docs/guard.md.
 
+A rollback (`rosdeploy rollback`, the fleet's rollback) arms one too, mode ROLLBACK, in its
+lock+state round trip; the `up` that switches re-arms it with the target. At its deadline
+(rollback_deadline) or after a reboot it completes the rollback: the target started the
+brake's way, activated, `guard-finished-rollback`.
+
 This module holds the script, the state file's format and the pure decisions made
 from it; commands.py builds the commands that arm and disarm it.
 """
@@ -26,6 +31,7 @@ from pathlib import Path
 from typing import Mapping
 
 MODES = ("revert", "finish", "off")
+ROLLBACK = "rollback"  # the state's mode while an operator's (or the fleet's) rollback is in flight
 STATE = "state"        # armed, waiting for its deadline
 ACTING = "acting"      # the state, renamed when the guard took over
 
@@ -36,7 +42,7 @@ class Guard:
 
     run: str
     by: str
-    mode: str                   # revert | finish
+    mode: str                   # revert | finish | rollback
     phase: str                  # prepare (lock to upload) | start (a container of `target` may run)
     target: str
     previous: str | None        # `current` when it was armed
@@ -44,6 +50,12 @@ class Guard:
     boot: str = ""
     acting: bool = False
     reason: str = ""            # why it acts (acting only)
+    gated: bool = True          # rollback: its target passed a gate here before
+
+    @property
+    def kind(self) -> str:
+        """What it guards, for people: a deploy or a rollback."""
+        return "rollback" if self.mode == ROLLBACK else "deploy"
 
     def seconds_left(self, clock: int | None) -> int | None:
         if self.deadline is None or clock is None:
@@ -55,6 +67,8 @@ class Guard:
         """What it does when it acts: a verb phrase for people."""
         if self.phase == "prepare":
             return "releases the lock"
+        if self.mode == ROLLBACK:
+            return f"finishes the rollback to {self.target}" if self.gated else f"reverts to {self.previous}"
         if self.mode == "finish":
             return f"gates {self.target} itself"
         return f"reverts to {self.previous}" if self.previous else f"stops {self.target}"
@@ -76,13 +90,25 @@ def parse_guard(text: str | None, acting: bool = False) -> Guard | None:
                  phase=values.get("phase", "prepare"), target=values.get("target", ""),
                  previous=values.get("previous") or None,
                  deadline=int(deadline) if deadline.isdigit() else None, boot=values.get("boot", ""),
-                 acting=acting, reason=values.get("reason", ""))
+                 acting=acting, reason=values.get("reason", ""), gated=values.get("gated", "yes") == "yes")
 
 
 def state_text(fields: Mapping[str, object]) -> str:
     """The state the controller arms with (the robot adds dir, phase, deadline, boot).
     One value per line: a newline inside a value would start a key of its own."""
     return "".join(f"{k}={' '.join(str(v).split()) if k != 'services' else v}\n" for k, v in fields.items())
+
+
+def rollback_deadline(command_timeout: float, gate: float, margin: float) -> float:
+    """Seconds from a rollback's `up` until its guard completes it. The controller may wait for
+    the `up` (ssh.command_timeout) and then, counted from the same start, for the target's
+    health (health.timeout) before it activates: a shorter deadline would race a live one."""
+    return max(command_timeout, gate) + margin
+
+
+def rearm_text(run: str, seconds: float, fields: Mapping[str, object]) -> str:
+    """A re-arm that also brings state lines ("RUN SECONDS" + lines; see `rearm` in _guard.sh)."""
+    return f"{run} {int(seconds)}\n{state_text(fields)}"
 
 
 def probe_spec(topics: list[dict], window: float) -> str:

@@ -116,15 +116,60 @@ revert() {
   fi
 }
 
+# runs_on RELEASE [SERVICE...]: every container of the project is running and from RELEASE,
+# and every SERVICE has one (their health aside: wait_ok judges that)
+runs_on() {
+  rel=$1; shift; seen=" "
+  ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project")
+  [ -n "$ids" ] || return 1
+  fmt='{{.State.Status}} {{index .Config.Labels "com.docker.compose.service"}}'
+  fmt="$fmt"' {{index .Config.Labels "com.docker.compose.project.working_dir"}}'
+  # shellcheck disable=SC2086  # container ids, one argument each
+  out=$(docker inspect --format "$fmt" $ids 2>/dev/null) || return 1
+  while read -r st svc wd; do
+    [ -n "${svc:-}" ] || continue
+    [ "$st" = running ] || return 1
+    case $wd in */releases/"$rel") seen="$seen$svc " ;; *) return 1 ;; esac
+  done <<EOF
+$out
+EOF
+  for s in "$@"; do case $seen in *" $s "*) ;; *) return 1 ;; esac; done
+}
+
+# An operator's rollback whose controller went away mid-switch: complete it as the brake
+# does (the target passed its gate when it was activated before): start it all at once
+# unless it runs already, activate it, one history line. A target that never passed a gate
+# here is not left running: the release it left (`current`, activated) comes back instead.
+finish_rollback() {
+  if [ "$gated" != yes ]; then
+    revert "$1; the rollback's target $target never passed its gate here"
+    return
+  fi
+  say "finishing the rollback to $target ($1)"
+  # shellcheck disable=SC2086  # service names (the fleet file's [a-z0-9_-]), one argument each
+  runs_on "$target" $services || sh "$g/up.sh" "$root" "$project" "$target" "$flavor" together "" >> "$g/log" 2>&1
+  host_back "$target"     # as the controller's rollback does right after its switch
+  # shellcheck disable=SC2086  # as above
+  if wait_ok "$target" "$gate" $services; then result=active; else result=unhealthy; fi
+  sh "$g/finish.sh" "$root" "$project" "$target" \
+    "$(entry guard-finished-rollback "$target" "$result" "$1" "$previous")" "$keep" "" >> "$g/log" 2>&1
+}
+
 act() {
   f=$g/acting
   dir=$(get dir "$f"); project=$(get project "$f"); target=$(get target "$f"); previous=$(get previous "$f")
   flavor=$(get flavor "$f"); mode=$(get mode "$f"); phase=$(get phase "$f"); services=$(get services "$f")
   gate=$(get gate "$f"); stable=$(get stable "$f"); keep=$(get keep "$f"); probe=$(get probe "$f")
-  by=$(get by "$f"); reason=$(get reason "$f")
+  by=$(get by "$f"); reason=$(get reason "$f"); gated=$(get gated "$f")
   root=${dir%/*}
   say "acting on run $run: $reason (mode $mode, phase $phase)"
-  if [ "$phase" = prepare ]; then
+  if [ "$phase" = prepare ] && [ "$mode" = rollback ]; then
+    previous=$(readlink "$dir/current" 2>/dev/null); previous=${previous##*/}
+    entry guard-rollback "$previous" unchanged "$reason before the rollback switched anything: nothing changed" \
+      >> "$dir/history.jsonl"
+  elif [ "$mode" = rollback ]; then
+    finish_rollback "$reason"
+  elif [ "$phase" = prepare ]; then
     host_back "$previous"     # installed after the upload, before anything started
     entry guard-rollback "$previous" unchanged "$reason before $target started: nothing changed" >> "$dir/history.jsonl"
   elif [ "$mode" = finish ]; then
@@ -174,7 +219,8 @@ read -r me < /proc/sys/kernel/hostname 2>/dev/null || me=
 printf '%s %s\n' "$run" "$me" > "$g/started"
 say "guard of run $run armed"
 if [ $restarted = yes ]; then
-  claim "robot restarted mid-deploy" && act
+  what=deploy; [ "$(get mode "$g/state")" != rollback ] || what=rollback
+  claim "robot restarted mid-$what" && act
 fi
 while :; do
   [ -f "$g/state" ] || { [ -f "$g/acting" ] && act; leave; continue; }

@@ -96,7 +96,7 @@ def status_word(state: RobotState, problems: Mapping[str, str], lock_alive: bool
         left = guard.seconds_left(state.clock)
         when = f"in {left} s" if left is not None else "at its deadline"
         if guard.boot and state.boot and guard.boot != state.boot:
-            return "INTERRUPTED", f"{where}; robot restarted mid-deploy ({who}); the guard {guard.will} now"
+            return "INTERRUPTED", f"{where}; robot restarted mid-{guard.kind} ({who}); the guard {guard.will} now"
         cut_off = lock.get("run") != guard.run or lock_alive is False
         word = "INTERRUPTED" if cut_off else "DEPLOYING"
         gone = " (its process is gone)" if lock_alive is False else ""

@@ -7,6 +7,8 @@
 
 g=$dir/.guard
 guard_name=rosdeploy-guard-$project
+nl='
+'
 claim() {
   i=0
   until mkdir "$g/.claim" 2>/dev/null; do
@@ -17,11 +19,13 @@ claim() {
 unclaim() { rmdir "$g/.claim" 2>/dev/null; }
 armed_by() { [ -f "$g/state" ] && grep -qxF "run=$1" "$g/state"; }
 took_over() { echo "the deploy guard on the robot took this run over (it acted at its deadline)" >&2; return 6; }
-# rearm RUN PHASE SECONDS: a new deadline for this run's guard
+# rearm RUN PHASE SECONDS[\nKEY=VALUE...]: a new deadline for this run's guard; a rollback's
+# lines after the first (target, flavor...: known only once its state was read) join the state
 rearm() {
   claim || { took_over; return 6; }
+  secs=${3%%"$nl"*}; more=${3#"$secs"}; more=${more#"$nl"}
   if armed_by "$1"; then
-    { cat "$g/state"; printf 'phase=%s\ndeadline=%s\n' "$2" "$(( $(date +%s) + $3 ))"; } > "$g/state.tmp" \
+    { cat "$g/state"; printf 'phase=%s\ndeadline=%s\n%s' "$2" "$(( $(date +%s) + secs ))" "$more"; } > "$g/state.tmp" \
       && mv "$g/state.tmp" "$g/state"
     unclaim; return 0
   fi

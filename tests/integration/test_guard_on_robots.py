@@ -308,3 +308,94 @@ def test_the_guards_revert_restores_the_previous_host_changes(fleet, tmp_path: P
     outcome = lane.settle(case, shell.current(), problems)
     assert not problems, outcome + ": " + "; ".join(problems)
     assert shell.run(host_files) == before, "the guard's revert restores the previous rules and schedule"
+
+
+# ------------------------------------------------------------------ a rollback that loses its controller
+
+ROLLBACK_FAULTS = {"robot1": "kill", "robot2": "cut", "robot3": "reboot"}   # one robot each, at once
+RB_GATE, RB_MARGIN, RB_TIMEOUT = 20, 5, 15     # the guard completes at max(15, 20) + 5 = 25 s after the switch
+
+
+def wait_old_stopped(robot: str, old: str, problems: list[str]) -> None:
+    """Until no container of `old` runs: the rollback's switch stopped them (`together`)."""
+    fmt = "{{.Label \"com.docker.compose.project.working_dir\"}}"
+    end = time.monotonic() + 60
+    while time.monotonic() < end:
+        ps = simulator.robot_exec(robot, ["docker", "ps", "--filter", "label=com.docker.compose.project=demo",
+                                          "--format", fmt], timeout=30)
+        if ps.returncode == 0 and f"/releases/{old}" not in ps.stdout:
+            return
+    problems.append(f"{old}'s containers never stopped: the rollback did not switch")
+
+
+def rollback_case(fleet, fleet_file: Path, robot: str, fault: str) -> tuple[str, str, str, str]:
+    """`rosdeploy rollback` on one robot, the fault put in once the old containers stopped."""
+    problems: list[str] = []
+    shell = RobotShell(fleet, robot)
+    left = shell.current()
+    target = next(e["release"] for e in reversed(shell.history()) if e.get("result") == "active"
+                  and e.get("release") != left)
+    shell.close()
+    out_file, err_file = tempfile.TemporaryFile(mode="w+"), tempfile.TemporaryFile(mode="w+")
+    ctl = subprocess.Popen([sys.executable, "-m", "rosdeploy", "--json", "rollback", str(fleet_file), "--yes",
+                            "--limit", robot], stdout=out_file, stderr=err_file, text=True, cwd=REPO,
+                           env=dict(os.environ, PYTHONPATH=str(REPO)))
+    wait_old_stopped(robot, left, problems)
+    if fault == "kill":
+        ctl.send_signal(signal.SIGKILL)
+    else:
+        (simulator.cut if fault == "cut" else simulator.reboot)(robot)
+    try:
+        ctl.wait(timeout=120)
+    except subprocess.TimeoutExpired:
+        ctl.kill()
+        ctl.wait()
+        problems.append("the controller did not end by itself within 120 s of the fault")
+    if fault == "cut":
+        simulator.heal(robot)
+    out_file.seek(0)
+    err_file.seek(0)
+    if fault != "kill":
+        Lane.check_report(out_file.read(), err_file.read(), problems)
+    if fault != "reboot":    # after a reboot the guard acts at once: it may be done before we look
+        seen = status_of(fleet_file, robot)
+        if seen.get("state") not in ("INTERRUPTED", "RECOVERING") or "rollback" not in str(seen.get("reason")):
+            problems.append(f"status said {seen.get('state')!r} ({seen.get('reason')!r}) while interrupted")
+    shell = RobotShell(fleet, robot)
+    end = time.monotonic() + RB_TIMEOUT + RB_GATE + RB_MARGIN + 60
+    while not guard_gone(shell, "/home/robot/rosdeploy/demo") and time.monotonic() < end:
+        time.sleep(2)
+    current, history = shell.current(), shell.history()
+    last = history[-1] if history else {}
+    if not all_healthy(shell, settle=30):
+        problems.append("not healthy")
+    if current != target or running_release(shell) != {target}:
+        problems.append(f"current {current}, running {running_release(shell)}: not the rollback's target {target}")
+    why = "robot restarted mid-rollback" if fault == "reboot" else "controller lost"
+    if (last.get("event"), last.get("release"), last.get("result")) != ("guard-finished-rollback", target, "active") \
+            or why not in str(last.get("reason")):
+        problems.append(f"history ends with {last}")
+    if shell.run("test -e /home/robot/rosdeploy/demo/.lock && echo held || true").strip():
+        problems.append("a lock is left")
+    shell.close()
+    again = cli("--json", "apply", fleet_file, "--yes", "--limit", robot)
+    if again.returncode != 0:
+        problems.append(f"the next apply did not converge: {again.stdout[-400:]} {again.stderr[-400:]}")
+    outcome = f"{last.get('event')} -> {str(current).rsplit('-', 1)[0]} ({last.get('result')}): {last.get('reason')}"
+    return robot, f"{fault}@switch rollback 1.1.0 -> 1.0.0", outcome, "; ".join(problems)
+
+
+def test_a_rollback_that_loses_its_controller_mid_switch_ends_on_its_target(fleet, tmp_path: Path) -> None:
+    fleet_file = write_fleet(tmp_path, write_inventory(fleet, tmp_path),
+                             health={"timeout": f"{RB_GATE}s", "stable": "2s"},
+                             rollback={"guard": "revert", "guard_margin": f"{RB_MARGIN}s"},
+                             ssh={"command_timeout": f"{RB_TIMEOUT}s"})
+    for version in ("1.0.0", "1.1.0"):      # 1.0.0 activated before: the rollback's target
+        done = cli("--json", "apply", fleet_file, "--yes", "--waves", "100%", "--version", version)
+        assert done.returncode == 0, done.stdout[-3000:]
+    with ThreadPoolExecutor(max_workers=3) as pool:
+        rows = list(pool.map(lambda r: rollback_case(fleet, fleet_file, r, ROLLBACK_FAULTS[r]), ROLLBACK_FAULTS))
+    table = "\n".join(f"| {r} | {c} | {o} | {p or 'ok'} |" for r, c, o, p in rows)
+    Path(f"{os.environ.get('ROSDEPLOY_GUARD_TABLE', tmp_path / 'guard-cases.md')}.rollback").write_text(table + "\n")
+    failed = [f"{r} {c}: {p}" for r, c, o, p in rows if p]
+    assert not failed, "\n" + "\n".join(failed) + "\n\n" + table
