@@ -65,6 +65,9 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--retries", type=int, default=1,
                    help="times a failed round is run again (the failure is kept in the results)")
     p.add_argument("--no-write", action="store_true", help="print only; leave docs/ and bench/results/ alone")
+    p.add_argument("--rounds-file", type=Path, metavar="FILE",
+                   help="add this run's rounds to FILE (JSON) and report over every round in it: several short "
+                        "runs (`--runs 1`, the sim lock held a few minutes each) make one result")
     args = p.parse_args(argv)
     args.sizes = sorted({int(n) for n in args.fanout.split(",") if n.strip()})
     args.tools = [t for t in TOOLS if t in args.tools.split(",")]
@@ -265,6 +268,24 @@ def build_results(args: argparse.Namespace, argv: Sequence[str], rounds: dict[st
             "fleet": fleet, "fanout": fanout}
 
 
+def kept_rounds(path: Path, rounds: dict[str, list[dict[str, Measure]]], load: tuple[float, ...],
+                ) -> tuple[dict[str, list[dict[str, Measure]]], tuple[float, ...]]:
+    """The rounds saved in `path` plus this run's (saved back), and the highest 1-minute load
+    average any of those runs started at."""
+    import dataclasses
+    import json
+
+    saved = json.loads(path.read_text()) if path.exists() else {"rounds": {}, "loads": []}
+    for tool, series in rounds.items():
+        saved["rounds"].setdefault(tool, []).extend(
+            {name: dataclasses.asdict(m) for name, m in got.items()} for got in series)
+    saved["loads"].append(list(load))
+    path.write_text(json.dumps(saved, indent=1))
+    every = {tool: [{name: Measure(m["seconds"], tuple(m["steps"]), m["wall_inside"]) for name, m in got.items()}
+                    for got in series] for tool, series in saved["rounds"].items()}
+    return every, tuple(max(loads) for loads in zip(*saved["loads"]))
+
+
 def with_goals(results: dict[str, Any]) -> dict[str, Any]:
     goals = report.goals(results.get("fleet", {}), results.get("fanout", {}))
     return {**results, "goals": [{**g.__dict__, "met": g.met} for g in goals]}
@@ -324,6 +345,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 fanout_error = str(exc)[:3000]
                 log(f"fan-out stopped: {fanout_error.splitlines()[0]}")
         fan_raw = {name: series for name, series in fan_raw.items() if series}
+        if args.rounds_file:
+            rounds, load_start = kept_rounds(args.rounds_file, rounds, load_start)
         results = build_results(args, argv, rounds, fan_raw, playbook, load_start)
         results.update(discarded_rounds=discarded, fanout_error=fanout_error)
         partial = args.scenarios != list(SCENARIOS)
