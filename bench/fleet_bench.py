@@ -283,7 +283,7 @@ def kept_rounds(path: Path, rounds: dict[str, list[dict[str, Measure]]], load: t
     path.write_text(json.dumps(saved, indent=1))
     every = {tool: [{name: Measure(m["seconds"], tuple(m["steps"]), m["wall_inside"]) for name, m in got.items()}
                     for got in series] for tool, series in saved["rounds"].items()}
-    return every, tuple(max(loads) for loads in zip(*saved["loads"]))
+    return every, tuple(max(loads) for loads in zip(*saved["loads"], strict=True))
 
 
 def with_goals(results: dict[str, Any]) -> dict[str, Any]:
