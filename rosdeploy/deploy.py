@@ -80,7 +80,7 @@ class RobotRun:
         self.ctx = ctx
         self.spec = ctx.spec
         self.host = host
-        self.t: Transport | None = None
+        self._t: Transport | None = None
         self.steps: list[Step] = []
         self.started = time.monotonic()
         self.locked = False
@@ -115,8 +115,19 @@ class RobotRun:
             if hasattr(self.t, "reconnect"):
                 self.t.reconnect = False    # lost mid-deploy: the robot is its guard's, not a new connection's
 
+    @property
+    def t(self) -> Transport:
+        """The robot's connection, from open() on."""
+        if self._t is None:
+            raise RuntimeError(f"{self.host.name}: a command before the connection (open() first)")
+        return self._t
+
+    @t.setter
+    def t(self, transport: Transport) -> None:
+        self._t = transport
+
     def close(self) -> None:
-        if self.t is not None:
+        if self._t is not None:
             # A lost connection leaves the robot to its guard: reconnecting to unlock (which
             # disarms) would take away the only thing that ends the deploy there.
             if self.locked and not (self.lost and self.armed):

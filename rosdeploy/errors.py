@@ -30,8 +30,8 @@ class Problem:
 
     def __str__(self) -> str:
         where = f"{self.file}:{self.line}" if self.line else self.file
-        key = f" {self.key}:" if self.key else ""
-        return f"{where}:{key} {self.message}"
+        text = f"{self.key}: {self.message}" if self.key else self.message
+        return f"{where}: {text}" if where else text   # no file (a registry, a flag): no empty prefix
 
 
 class RosdeployError(Exception):

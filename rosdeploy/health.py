@@ -3,9 +3,9 @@
 Containers first (cheap, one `docker inspect` per poll): every expected service
 running, healthy where the image or compose declares a check (Docker's verdict, or
 the check itself run by rosdeploy while Docker still says `starting`), no restarts.
-Then, once, the ROS graph: rosdeploy's probe runs inside a container of the release and checks each expected topic and its rate. The
-probe costs ~0.4 CPU-s, so it runs once per gate (plus one retry), never in a
-polling loop.
+Then, once, the ROS graph: rosdeploy's probe runs inside a container of the release and
+checks each expected topic and its rate. The probe costs ~0.4 CPU-s, so it runs once per
+gate (plus one retry), never in a polling loop.
 """
 from __future__ import annotations
 

@@ -253,15 +253,7 @@ def lock_holder(stdout: str) -> dict | None:
 
 # ------------------------------------------------------------ on the robot
 
-# Prints `held MTIME FIRST-LINE` when the lock file exists, nothing otherwise.
-LOCK_SCRIPT = r'''
-p=$1
-case $p in "~/"*) p=$HOME/${p#"~/"};; esac
-[ -e "$p" ] || exit 0
-m=$(stat -c %Y "$p" 2>/dev/null || echo "?")
-l=""; [ -r "$p" ] && IFS= read -r l < "$p"
-printf 'held %s %s\n' "$m" "$l"
-'''
+LOCK_SCRIPT = commands.load("app-lock.sh")
 
 
 def lock_command(path: str) -> commands.Command:

@@ -22,7 +22,7 @@ import hashlib
 import json
 from typing import Any, Mapping
 
-from rosdeploy.commands import _PROLOGUE, Command, script
+from rosdeploy.commands import Command, load, script
 from rosdeploy.model import RenderedFile, RenderedRelease
 
 HASH_LABEL = "io.rosdeploy.hash"
@@ -76,30 +76,7 @@ def will_restart(new: Mapping[str, str], running: Mapping[str, str]) -> tuple[st
     return tuple(sorted(name for name, h in new.items() if not h or running.get(name) != h))
 
 
-LINK_STORE_SCRIPT = _PROLOGUE + r'''
-release=$1
-src=$dir/releases/$release/store
-mkdir -p "$dir/store"
-if [ -d "$src" ]; then
-  for entry in "$src"/*/; do
-    [ -d "$entry" ] || continue
-    key=$(basename "$entry")
-    [ -d "$dir/store/$key" ] && continue
-    # a temp dir renamed into place: a cut connection never leaves half an entry
-    tmp=$dir/store/.tmp-$key-$$
-    rm -rf "$tmp"; mkdir -p "$tmp"
-    for f in "$entry"*; do ln "$f" "$tmp/" 2>/dev/null || cp -p "$f" "$tmp/" || exit 5; done
-    mv "$tmp" "$dir/store/$key"
-  done
-fi
-# Entries no kept release holds any more (their releases were pruned).
-for entry in "$dir/store"/*/; do
-  [ -d "$entry" ] || continue
-  key=$(basename "$entry")
-  set -- "$dir"/releases/*/store/"$key"
-  [ -e "$1" ] || rm -rf "$entry"
-done
-'''
+LINK_STORE_SCRIPT = load("link-store.sh")
 
 
 def link_store(root: str, project: str, release: str) -> Command:

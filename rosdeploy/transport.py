@@ -60,6 +60,10 @@ class Transport(Protocol):
 
     def run(self, command: Command) -> Result: ...
 
+    def check(self, command: Command, what: str = "") -> Result:
+        """run, raising CommandFailed on a non-zero exit."""
+        ...
+
     def close(self) -> None: ...
 
 

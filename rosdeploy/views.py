@@ -150,7 +150,7 @@ def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPla
     sections = parse_sections(out.stdout)
     old_files = [None if sections.get(f"file{i}") == "!!absent!!" else sections.get(f"file{i}", "")
                  for i in range(1, len(names) + 1)]
-    diffs = tuple((f.name, _diff(f.name, old, f.content)) for f, old in zip(release.files, old_files)
+    diffs = tuple((f.name, _diff(f.name, old, f.content)) for f, old in zip(release.files, old_files, strict=True)
                   if (old or "").strip() != f.content.strip() and not f.name.startswith(restarts.STORE + "/"))
     recreate = restarts.will_restart(restarts.release_hashes(release),
                                      {c.service: c.hash for c in state.containers if c.status == "running"})

@@ -3,6 +3,7 @@ rendered into each command's help, and the arguments several commands take."""
 from __future__ import annotations
 
 import argparse
+import os
 from typing import TYPE_CHECKING, Any, NoReturn, Sequence
 
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
@@ -97,9 +98,21 @@ def positive_int(text: str) -> int:
     return value
 
 
+def path_arg(text: str) -> str:
+    """A path from the command line: `~` and `~user` expanded here, where an unknown user or a
+    NUL byte can still be an argument error instead of a crash deep in a file open."""
+    if "\0" in text:
+        raise argparse.ArgumentTypeError(f"{text!r} holds a NUL byte: no path can")
+    expanded = os.path.expanduser(text)
+    if expanded.startswith("~"):
+        user = expanded[1:].split("/", 1)[0]
+        raise argparse.ArgumentTypeError(f"{text!r}: there is no user {user!r} to expand ~{user} for")
+    return expanded
+
+
 def add_fleet_args(parser: argparse.ArgumentParser, *, limit: bool = True, version: bool = True) -> None:
-    parser.add_argument("fleet", metavar="FLEET", help="the fleet file, e.g. playbooks/warehouse.yml")
-    parser.add_argument("-i", "--inventory", metavar="PATH",
+    parser.add_argument("fleet", type=path_arg, metavar="FLEET", help="the fleet file, e.g. playbooks/warehouse.yml")
+    parser.add_argument("-i", "--inventory", type=path_arg, metavar="PATH",
                         help="inventory file or directory (overrides the fleet file's `inventory`)")
     if limit:
         parser.add_argument("-l", "--limit", metavar="PATTERN",

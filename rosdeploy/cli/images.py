@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
-from rosdeploy.cli.common import add_command, add_fleet_args
+from rosdeploy.cli.common import add_command, add_fleet_args, path_arg
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
 from rosdeploy.images.refs import human_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
@@ -26,12 +26,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                     (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL),
                     "rosdeploy bundle playbooks/demo.yml --version 1.1.0 --out demo-1.1.0.tar")
     add_fleet_args(p)
-    p.add_argument("--out", required=True, metavar="FILE", help="the bundle to write (an OCI image layout in a tar)")
+    p.add_argument("--out", required=True, type=path_arg, metavar="FILE",
+                   help="the bundle to write (an OCI image layout in a tar)")
     p.set_defaults(func=cmd_bundle)
 
 
 def add_from_bundle(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--from-bundle", metavar="FILE",
+    p.add_argument("--from-bundle", type=path_arg, metavar="FILE",
                    help="take the images from a `rosdeploy bundle` file, over SSH (no registry needed)")
 
 

@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
-from rosdeploy.cli.common import add_command, add_fleet_args, inventory_targets
+from rosdeploy.cli.common import add_command, add_fleet_args, inventory_targets, path_arg
 from rosdeploy.cli.vault import vault_from_args
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
 from rosdeploy.output import Output
@@ -36,7 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "exactly as a deploy would upload them. Nothing is contacted.",
                     (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL), "rosdeploy render playbooks/demo.yml --out /tmp/rendered")
     add_fleet_args(p)
-    p.add_argument("-o", "--out", required=True, metavar="DIR", help="folder to write DIR/<robot>/<file> into")
+    p.add_argument("-o", "--out", required=True, type=path_arg, metavar="DIR",
+                   help="folder to write DIR/<robot>/<file> into")
     p.set_defaults(func=cmd_render)
 
     p = add_command(sub, "check", "run the deployment checklist; exit 2 if any error",
@@ -97,7 +98,12 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
     for warning in warnings:
         out.warn(f"{warning.severity}: {warning}")
     root = Path(args.out)
-    written = [write_release(root / name, release) for name, release in releases.items()]
+    try:
+        written = [write_release(root / name, release) for name, release in releases.items()]
+    except OSError as exc:   # --out is a file, read-only, too long a name...
+        reason = exc.strerror or str(exc)
+        raise InputError([Problem(str(exc.filename or root), None, "--out",
+                                  f"cannot write there ({reason}): give a folder you can write to")]) from None
     if out.as_json:
         robots = [_release_json(r, d) for r, d in zip(releases.values(), written, strict=True)]
         out.document({"out": str(root), "robots": robots})

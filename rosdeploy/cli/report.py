@@ -287,4 +287,4 @@ def connections(out: Output, reply: dict | None, closed: bool) -> None:
 
 def _plain(obj: Any) -> Any:
     from dataclasses import asdict, is_dataclass
-    return asdict(obj) if is_dataclass(obj) else obj
+    return asdict(obj) if is_dataclass(obj) and not isinstance(obj, type) else obj

@@ -10,7 +10,7 @@ import subprocess
 import sys
 
 from rosdeploy import vault as vaultlib
-from rosdeploy.cli.common import epilog
+from rosdeploy.cli.common import epilog, path_arg
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem, VaultError
 from rosdeploy.output import Output
 
@@ -32,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             ("edit", _edit, False, "edit a vault file with $EDITOR (created if missing)")):
         action = actions.add_parser(name, help=text, description=text,
                                     epilog=epilog(CODES, f"rosdeploy vault {name} {EXAMPLE_FILE}"))
-        action.add_argument("files", nargs="+" if many else 1, metavar="FILE")
+        action.add_argument("files", nargs="+" if many else 1, type=path_arg, metavar="FILE")
         add_vault_options(action)
         if name in ("encrypt", "edit"):
             _format_args(action)
@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def add_vault_options(parser: argparse.ArgumentParser) -> None:
     """--vault-password-file and --vault-id (repeatable): for `vault` and for every fleet command."""
-    parser.add_argument("--vault-password-file", metavar="FILE",
+    parser.add_argument("--vault-password-file", type=path_arg, metavar="FILE",
                         help=f"file holding the vault password (or set {vaultlib.ENV_PASSWORD_FILE} "
                              f"or {vaultlib.ENV_PASSWORD}); an executable file is run")
     parser.add_argument("--vault-id", dest="vault_ids", action="append", default=[], metavar="LABEL@FILE",

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from rosdeploy import yamlsrc
 from rosdeploy.errors import InputError, Problem, VaultError
@@ -110,21 +110,64 @@ def _parse_ini_or_skip(path: Path, read: tuple[str, bool], draft: Draft) -> None
                                       "as Ansible skips a file it cannot parse", severity="warning"))
 
 
+# An inventory directory holds a few dozen files. Past this many entries the path is almost
+# surely wrong (`inventory: /`, `../..`): stop before walking, or running scripts in, a whole disk.
+MAX_DIR_ENTRIES = 5000
+
+
 def _inventory_files(root: Path, problems: list[Problem]) -> list[Path]:
     found: list[Path] = []
-    for entry in sorted(root.iterdir()):
-        if entry.name.startswith(".") or entry.name in ("group_vars", "host_vars"):
-            continue
-        if entry.is_dir():
-            found.extend(_inventory_files(entry, problems))
-        elif entry.name.endswith(SKIPPED_EXTS):
-            continue
-        elif entry.suffix in SCRIPT_EXTS and not is_script(entry):
-            problems.append(Problem(str(entry), None, "", "looks like a dynamic inventory script but is not "
-                                    "executable: `chmod +x` it to have it run (as Ansible does), or move it "
-                                    "out of the inventory directory"))
-        else:
-            found.append(entry)  # like Ansible: YAML by extension, anything else is INI
+    seen: set[Path] = set()
+    walked = [0]
+
+    def walk(folder: Path) -> None:
+        real = folder.resolve()
+        if real in seen:   # a symlink loop, or two links to one folder: read it once
+            return
+        seen.add(real)
+        try:
+            entries = sorted(folder.iterdir())
+        except OSError as error:
+            raise _Unreadable(folder, error.strerror or str(error)) from None
+        walked[0] += len(entries)
+        if walked[0] > MAX_DIR_ENTRIES:
+            raise _TooBig(root)
+        for entry in entries:
+            _sort_entry(entry, walk, found, problems)
+
+    try:
+        walk(root)
+    except _Unreadable as error:
+        problems.append(Problem(str(error.folder), None, "", f"cannot read this inventory folder ({error.reason})"))
+        return []
+    except _TooBig:
+        problems.append(Problem(str(root), None, "", f"more than {MAX_DIR_ENTRIES} entries under this inventory "
+                                "directory: it does not look like an inventory; point -i / the fleet file's "
+                                "`inventory:` at the folder that holds hosts.yml (or the file itself)"))
+        return []
     return found
 
 
+class _Unreadable(Exception):
+    def __init__(self, folder: Path, reason: str) -> None:
+        super().__init__(reason)
+        self.folder, self.reason = folder, reason
+
+
+class _TooBig(Exception):
+    pass
+
+
+def _sort_entry(entry: Path, walk: Callable[[Path], None], found: list[Path], problems: list[Problem]) -> None:
+    if entry.name.startswith(".") or entry.name in ("group_vars", "host_vars"):
+        return
+    if entry.is_dir():
+        walk(entry)
+    elif entry.name.endswith(SKIPPED_EXTS):
+        return
+    elif entry.suffix in SCRIPT_EXTS and not is_script(entry):
+        problems.append(Problem(str(entry), None, "", "looks like a dynamic inventory script but is not "
+                                "executable: `chmod +x` it to have it run (as Ansible does), or move it "
+                                "out of the inventory directory"))
+    else:
+        found.append(entry)  # like Ansible: YAML by extension, anything else is INI

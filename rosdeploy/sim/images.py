@@ -19,7 +19,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import AbstractSet, Callable, Iterable
 
 from rosdeploy.errors import SimError
 from rosdeploy.sim import registry
@@ -251,7 +251,7 @@ def prune_superseded(current: SimImages) -> None:
     remove_images(keep={_image_id(ref) for ref in (current.robot, current.ros_base, *current.demo)})
 
 
-def remove_images(keep: set[str] = frozenset()) -> list[str]:
+def remove_images(keep: AbstractSet[str] = frozenset()) -> list[str]:
     """Remove every image the simulator built except `keep` (ids); return the ids left,
     i.e. kept ones and those still in use by a container."""
     removed = True

@@ -68,7 +68,7 @@ def _wait_with_heartbeat(proc: subprocess.Popen, what: str, started: float, time
             if elapsed > timeout:
                 proc.kill()
                 proc.wait()
-                raise SimError(f"{what} took longer than {timeout:.0f} s and was stopped")
+                raise SimError(f"{what} took longer than {timeout:.0f} s and was stopped") from None
             progress(f"{what}: still running ({elapsed:.0f} s)")
             next_beat += HEARTBEAT_S
 

@@ -14,6 +14,7 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
+from typing import TypeGuard
 
 from rosdeploy.errors import SimError
 from rosdeploy.sim.model import REGISTRY_HOST, SimPaths
@@ -84,7 +85,7 @@ def start(paths: SimPaths, timeout: float = 20.0) -> int:
                    f"see {paths.logs / 'registry.log'}")
 
 
-def is_ours(pid: int | None, paths: SimPaths) -> bool:
+def is_ours(pid: int | None, paths: SimPaths) -> TypeGuard[int]:
     """True when pid still is the registry this state dir started (pids get reused)."""
     if not pid:
         return False

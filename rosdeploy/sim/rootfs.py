@@ -116,6 +116,7 @@ def docker_import(root: Path, tag: str, labels: dict[str, str]) -> None:
     changes = [arg for key, value in labels.items() for arg in ("--change", f"LABEL {key}={value}")]
     tar = subprocess.Popen(["tar", "-C", str(root), "--numeric-owner", "-c", "."],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert tar.stdout is not None and tar.stderr is not None     # both pipes, as asked
     try:
         imported = run(("docker", "import", *changes, "-", tag), what=f"docker import {tag}",
                        check=False, stdin=tar.stdout)

@@ -143,7 +143,8 @@ def test_a_bind_mount_needs_its_robot_directory_and_is_mounted_read_only(fleet, 
     shell = RobotShell(fleet, "robot1")
     assert shell.containers() == {}, "preflight stopped it before anything changed"
 
-    simulator.robot_exec("robot1", ["sh", "-c", "mkdir -p /home/robot/maps && echo warehouse-7 > /home/robot/maps/map.yaml"])
+    simulator.robot_exec("robot1",
+                         ["sh", "-c", "mkdir -p /home/robot/maps && echo warehouse-7 > /home/robot/maps/map.yaml"])
     mounted = deploy(fleet_file, "--limit", "robot1")
     assert mounted.code == EXIT_OK, mounted.stderr
     assert shell.run("docker exec demo-driver-1 cat /maps/map.yaml").strip() == "warehouse-7"

@@ -2,16 +2,18 @@
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import os
 import re
 import subprocess
+import sys
 import tarfile
 from pathlib import Path
 
 import pytest
 
-from rosdeploy import commands
+from rosdeploy import commands, ready, restarts
 
 
 def run_local(cmd: commands.Command, home: Path) -> subprocess.CompletedProcess:
@@ -204,7 +206,8 @@ def fake_docker(tmp_path: Path) -> tuple[dict, Path]:
                                     'case "$1 $2" in "ps -aq"|"ps -q") echo c1; echo c2;; esac\n'
                                     '[ "$*" != "$DOCKER_FAIL" ] || exit 5\n'
                                     'if [ "$1" = inspect ]; then shift 2; for c in "$@"; do\n'
-                                    '  printf \'{"id": "%s", "name": "demo-%s", "status": "running"}\\n\' "$c" "$c"; done; fi\n')
+                                    '  printf \'{"id": "%s", "name": "demo-%s", "status": "running"}\\n\' "$c" "$c"\n'
+                                    'done; fi\n')
     (bin_dir / "docker").chmod(0o755)
     env = {"HOME": str(tmp_path), "PATH": f"{bin_dir}:{os.environ['PATH']}", "DOCKER_LOG": str(log)}
     (tmp_path / "r/demo/releases/1.0.0-x").mkdir(parents=True)
@@ -235,7 +238,7 @@ def test_up_modes_run_these_docker_calls(tmp_path: Path, kwargs: dict, expected:
     assert out.returncode == 0, out.stderr
     calls = [re.sub(r"^inspect --format .* (c1 c2)$", r"inspect \1", c) for c in log.read_text().splitlines()]
     at = [i for i, c in enumerate(calls) if c.startswith("start ")]    # parallel: in any order
-    for i, call in zip(at, sorted(calls[i] for i in at)):
+    for i, call in zip(at, sorted(calls[i] for i in at), strict=True):
         calls[i] = call
     assert calls == expected
 
@@ -276,7 +279,8 @@ def test_up_of_a_missing_release_changes_nothing(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("test,argv", [
     (("CMD", "/opt/check", "--fast"), ("docker", "exec", "c1", "/opt/check", "--fast")),
-    (("CMD-SHELL", "curl -f localhost || exit 1"), ("docker", "exec", "c1", "/bin/sh", "-c", "curl -f localhost || exit 1")),
+    (("CMD-SHELL", "curl -f localhost || exit 1"),
+     ("docker", "exec", "c1", "/bin/sh", "-c", "curl -f localhost || exit 1")),
     (("NONE",), None),
     ((), None),
 ])
@@ -326,7 +330,7 @@ def test_health_watch_counts_a_sub_second_check_by_its_real_duration(tmp_path) -
     assert _watch_in_container(tmp_path, ("CMD-SHELL", check), window=2.0, every=0.1) == 3
     starts = [float(t) for t in (tmp_path / "tries").read_text().split()]
     assert len(starts) == 5
-    assert all(0.35 <= b - a < 0.6 for a, b in zip(starts, starts[1:]))
+    assert all(0.35 <= b - a < 0.6 for a, b in itertools.pairwise(starts))
 
 
 ENGINE_API_LIST = [{"Id": "abc", "Names": ["/demo-driver-1"], "Image": "r:5000/demo/driver:1.0.0",
@@ -386,3 +390,94 @@ def test_manifest_reads_a_kept_release_and_is_empty_for_a_missing_one(tmp_path: 
     assert out.returncode == 0 and json.loads(out.stdout) == {"version": "1.0.0", "services": ["driver"]}
     gone = run_local(commands.manifest("~/r", "demo", "9.9.9-zzz"), tmp_path)
     assert gone.returncode == 0 and gone.stdout == b""
+
+
+# ------------------------------------------------------------ the scripts are the files
+
+SHIPPED = Path(commands.__file__).parent           # rosdeploy/
+
+
+def _script_lines(path: Path) -> list[str]:
+    """A script file's own lines as load() sends them: no opening comment block, no
+    shellcheck directive, no include."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    opening = next((i for i, line in enumerate(lines) if not line.strip()), len(lines))
+    return [line for i, line in enumerate(lines)
+            if not (i < opening and line.startswith("#")) and not line.lstrip().startswith("# shellcheck ")
+            and not re.fullmatch(r"\. \./_[a-z0-9-]+\.sh", line)]
+
+
+def _includes(path: Path) -> list[str]:
+    return re.findall(r"(?m)^\. \./(_[a-z0-9-]+\.sh)$", path.read_text(encoding="utf-8"))
+
+
+def test_every_shell_file_of_the_package_is_loaded_by_something() -> None:
+    import importlib
+    import pkgutil
+
+    import rosdeploy
+    for module in pkgutil.walk_packages(rosdeploy.__path__, "rosdeploy."):
+        # not the demo image's own code (rclpy), nor `python -m rosdeploy` (it runs the CLI)
+        if not module.name.startswith("rosdeploy.sim.images") and not module.name.endswith("__main__"):
+            importlib.import_module(module.name)
+    strings = {value for name, mod in sys.modules.items() if name.startswith("rosdeploy")
+               for value in vars(mod).values() if isinstance(value, str)}
+    unused = []
+    for path in sorted(SHIPPED.rglob("*.sh")):
+        if path.parent == commands.SCRIPTS:
+            loaded = path.name in commands.LOADED
+        else:   # read whole by its module (guard.sh, images/pull.sh)
+            loaded = path.read_text(encoding="utf-8") in strings
+        if not loaded and "sim/images" not in path.as_posix():
+            unused.append(str(path.relative_to(SHIPPED)))
+    assert unused == []
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in commands.SCRIPTS.glob("*.sh")))
+def test_a_script_sends_its_file_and_each_fragment_once(name: str) -> None:
+    sent = commands.load(name).splitlines()
+    parts, todo = [], [name]          # the file and every fragment it includes, also through another
+    while todo:
+        part = todo.pop(0)
+        if part not in parts:
+            parts.append(part)
+            todo[:0] = _includes(commands.SCRIPTS / part)
+    for part in parts:                # each file's lines, in its order ...
+        assert _in_order(_script_lines(commands.SCRIPTS / part), sent), part
+    # ... and nothing else, nothing twice
+    assert sum(len(_script_lines(commands.SCRIPTS / part)) for part in parts) == len(sent)
+
+
+def _in_order(needles: list[str], haystack: list[str]) -> bool:
+    rest = iter(haystack)
+    return all(any(line == other for other in rest) for line in needles)
+
+
+@pytest.mark.parametrize("build,name", [
+    (lambda: commands.state("~/r", "p"), "state.sh"),
+    (lambda: commands.lock("~/r", "p", {"run": "x"}), "lock.sh"),
+    (lambda: commands.locked_state("~/r", "p", {"run": "x"}), "locked-state.sh"),
+    (lambda: commands.unlock("~/r", "p", "x"), "unlock.sh"),
+    (lambda: commands.upload("~/r", "p", "1", b""), "upload.sh"),
+    (lambda: commands.rearm("~/r", "p", "x 5"), "rearm.sh"),
+    (lambda: commands.pull(("img:1",)), "pull.sh"),
+    (lambda: commands.up("~/r", "p", "1", "v2"), "up.sh"),
+    (lambda: commands.down("~/r", "p", "1", "v2"), "down.sh"),
+    (lambda: commands.containers("p"), "containers.sh"),
+    (lambda: commands.ros_probe("c", "print()", {}, 5.0), "ros-probe.sh"),
+    (lambda: commands.finish("~/r", "p", "1", {}, 3), "finish.sh"),
+    (lambda: commands.record("~/r", "p", {}), "record.sh"),
+    (lambda: commands.manifest("~/r", "p", "1"), "manifest.sh"),
+    (lambda: commands.release_files("~/r", "p", "1", ("a",), ()), "release-files.sh"),
+    (lambda: restarts.link_store("~/r", "p", "1"), "link-store.sh"),
+    (lambda: ready.lock_command("~/lock"), "app-lock.sh"),
+])
+def test_each_builder_sends_its_file_as_it_is_now(build, name: str) -> None:
+    argv = build().argv
+    assert argv[:2] == ("sh", "-c") and argv[2] == commands.load(name) and argv[3] == commands.PROG
+
+
+def test_the_health_watch_sends_its_file() -> None:
+    cmd = commands.health_watch("c1", ("CMD", "true"), timeout=1.0, window=4.0, every=1.0)
+    assert cmd is not None and cmd.argv[4:6] == ("-c", commands.load("health-watch.sh"))
+    assert "health-watch.sh" in commands.LOADED

@@ -117,6 +117,30 @@ def test_directory_reads_every_inventory_file_and_skips_the_rest(tmp_path):
     assert {h.user for h in inventory.hosts.values()} == {"robot"}
 
 
+def test_a_symlink_loop_in_an_inventory_directory_is_read_once(tmp_path):
+    write(tmp_path, {"hosts.yml": ONE_HOST})
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "up").symlink_to(tmp_path)        # sub/up/sub/up/... forever
+    (tmp_path / "again").symlink_to(tmp_path / "sub")
+    inventory = load_inventory(str(tmp_path))
+    assert list(inventory.hosts) == ["r1"]
+
+
+def test_a_directory_that_is_no_inventory_is_refused_before_anything_runs(tmp_path):
+    write(tmp_path, {"hosts.yml": ONE_HOST})
+    marker = tmp_path / "ran"
+    script = tmp_path / "inventory.py"
+    script.write_text(f"#!/bin/sh\ntouch {marker}\necho '{{}}'\n")
+    script.chmod(0o755)
+    junk = tmp_path / "junk"
+    junk.mkdir()
+    for i in range(5001):
+        (junk / f"f{i}.txt").touch()
+    message = problems_of(tmp_path, {})
+    assert str(tmp_path) in message and "more than 5000 entries" in message and "inventory:" in message
+    assert not marker.exists()
+
+
 def test_yaml_hosts_may_be_null_and_ranges_expand(tmp_path):
     write(tmp_path, {"hosts.yml": "all:\n  vars:\n    ros_domain_id: 3\n  children:\n    empty:\n"
                                   "    fleet:\n      hosts:\n        amr-[01:03]:\n        spare:\n"})

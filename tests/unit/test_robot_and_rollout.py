@@ -105,7 +105,8 @@ def test_wave_sizes(total, waves, sizes) -> None:
     assert sum(sizes) == total
 
 
-@pytest.mark.parametrize("max_fail,size,allowed", [(0, 10, 0), (1, 10, 1), ("10%", 10, 1), ("10%", 9, 0), ("50%", 3, 1)])
+@pytest.mark.parametrize("max_fail,size,allowed",
+                         [(0, 10, 0), (1, 10, 1), ("10%", 10, 1), ("10%", 9, 0), ("50%", 3, 1)])
 def test_allowed_failures(max_fail, size, allowed) -> None:
     assert allowed_failures(max_fail, size) == allowed
 
@@ -177,7 +178,8 @@ def _lock_with(holder: dict, alive: bool, monkeypatch) -> tuple[object, str | No
     from rosdeploy.deploy import RobotRun, RunContext
     from rosdeploy.model import FleetSpec, Service
     monkeypatch.setattr(owner, "pid_alive", lambda pid: alive)
-    spec = FleetSpec(path="f", project="p", inventory="i", registry="r", version="1", services=(Service("s", "img", "1"),))
+    spec = FleetSpec(path="f", project="p", inventory="i", registry="r", version="1",
+                     services=(Service("s", "img", "1"),))
     ctx = RunContext(spec=spec, ssh=None, run_id="run-new", operator="me", cancel=threading.Event(),
                      controller=owner.Controller("b1", "ns1"))
     run = RobotRun(ctx, host("r1"))

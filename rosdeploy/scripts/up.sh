@@ -1,0 +1,54 @@
+# shellcheck shell=sh source-path=SCRIPTDIR
+. ./_prologue.sh
+. ./_compose.sh
+. ./_inspect.sh
+. ./_guard.sh
+
+release=$1; flavor=$2; mode=$3; arm=$4; shift 4
+cd "$dir/releases/$release" || { echo "release $release is not on this robot" >&2; exit 4; }
+ids=
+# Before the first container of the release starts: the guard's deadline becomes the
+# gate's, and its container starts now if the lock could not start it (no image yet).
+guard_pid=
+if [ -n "$arm" ]; then
+  rearm "${arm%% *}" start "${arm#* }" || exit 6
+  # shellcheck disable=SC2046 # one image a word: images.txt is rosdeploy's, one name a line
+  if [ ! -f "$g/container" ]; then start_guard $(cat images.txt) </dev/null >/dev/null 2>&1 & guard_pid=$!; fi
+fi
+start() {
+  case $mode in
+    all) compose -p "$project" -f compose.yml up -d --remove-orphans 2>&1 ;;
+    each)
+      # One call per service: within one call compose would still wait for
+      # `depends_on: service_healthy` between them; the caller checks dependencies itself.
+      for service in "$@"; do
+        compose -p "$project" -f compose.yml up -d --remove-orphans --no-deps "$service" 2>&1 || return $?
+      done ;;
+    together)
+      # Stop what runs all at once (compose stops one service after another; `docker stop`
+      # keeps each container's own stop signal and grace period), create everything, then
+      # start it all at once, as dockerd does when the robot boots.
+      running=$(docker ps -q --filter "label=com.docker.compose.project=$project")
+      # shellcheck disable=SC2086 # container ids, one a word
+      [ -z "$running" ] || docker stop $running >/dev/null || return $?
+      compose -p "$project" -f compose.yml up --no-start --remove-orphans 2>&1 || return $?
+      # One `docker start` per container, in parallel: one call starts them one by one.
+      ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project" \
+        --filter status=created --filter status=exited)
+      pids=
+      for id in $ids; do docker start "$id" >/dev/null & pids="$pids $!"; done
+      failed=0
+      for pid in $pids; do wait "$pid" || failed=$?; done
+      return $failed ;;
+    *) echo "unknown start mode $mode" >&2; return 2 ;;
+  esac
+}
+start "$@" || { code=$?; [ -z "$guard_pid" ] || wait "$guard_pid"; exit $code; }
+[ -z "$guard_pid" ] || wait "$guard_pid"
+# The project's containers as the gate's first poll would read them: that poll is one
+# round trip (and, under load, a few tenths of a second) before the health watches begin.
+printf '\n@@started\n'
+[ -n "$ids" ] || ids=$(docker ps -aq --filter "label=com.docker.compose.project=$project")
+# shellcheck disable=SC2086 # container ids, one a word
+[ -z "$ids" ] || docker inspect --format "$fmt" $ids 2>/dev/null
+exit 0
