@@ -5,8 +5,10 @@
 1. On the simulated fleet (`rosdeploy sim up`, reused when it runs), per round and
    per tool from clean robots: first deploy, no-op re-apply, upgrade 1.0.0 -> 1.1.0,
    1.2.0-bad until rolled back and healthy, emergency rollback of the whole fleet
-   (`--scenarios` selects some). Tools: rosdeploy, Ansible with the equal-work playbook
-   (bench/ansible/deploy.yml) and with the minimal one (bench/ansible/minimal.yml).
+   (`--scenarios` selects some). Tools: rosdeploy, rosdeploy-at-once (the same fleet file
+   with `--waves 100%`: the demo deploys a canary robot first, minimal.yml every robot at
+   once), Ansible with the equal-work playbook (bench/ansible/deploy.yml) and with the
+   minimal one (bench/ansible/minimal.yml).
 2. Fan-out: N host sshd targets on 127.0.0.1:3001... (their docker is the host's
    engine); `rosdeploy status`, no-op `rosdeploy apply` and Ansible's no-op run.
 Prints the table of medians, checks the targets, writes bench/results/fleet-<date>.json
