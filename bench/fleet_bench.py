@@ -5,8 +5,10 @@
 1. On the simulated fleet (`rosdeploy sim up`, reused when it runs), per round and
    per tool from clean robots: first deploy, no-op re-apply, upgrade 1.0.0 -> 1.1.0,
    1.2.0-bad until rolled back and healthy, emergency rollback of the whole fleet
-   (`--scenarios` selects some). Tools: rosdeploy, Ansible with the equal-work playbook
-   (bench/ansible/deploy.yml) and with the minimal one (bench/ansible/minimal.yml).
+   (`--scenarios` selects some). Tools: rosdeploy, rosdeploy-at-once (the same fleet file
+   with `--waves 100%`: the demo deploys a canary robot first, minimal.yml every robot at
+   once), Ansible with the equal-work playbook (bench/ansible/deploy.yml) and with the
+   minimal one (bench/ansible/minimal.yml).
 2. Fan-out: N host sshd targets on 127.0.0.1:3001... (their docker is the host's
    engine); `rosdeploy status`, no-op `rosdeploy apply` and Ansible's no-op run.
 Prints the table of medians, checks the targets, writes bench/results/fleet-<date>.json
@@ -65,6 +67,9 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--retries", type=int, default=1,
                    help="times a failed round is run again (the failure is kept in the results)")
     p.add_argument("--no-write", action="store_true", help="print only; leave docs/ and bench/results/ alone")
+    p.add_argument("--rounds-file", type=Path, metavar="FILE",
+                   help="add this run's rounds to FILE (JSON) and report over every round in it: several short "
+                        "runs (`--runs 1`, the sim lock held a few minutes each) make one result")
     args = p.parse_args(argv)
     args.sizes = sorted({int(n) for n in args.fanout.split(",") if n.strip()})
     args.tools = [t for t in TOOLS if t in args.tools.split(",")]
@@ -265,6 +270,24 @@ def build_results(args: argparse.Namespace, argv: Sequence[str], rounds: dict[st
             "fleet": fleet, "fanout": fanout}
 
 
+def kept_rounds(path: Path, rounds: dict[str, list[dict[str, Measure]]], load: tuple[float, ...],
+                ) -> tuple[dict[str, list[dict[str, Measure]]], tuple[float, ...]]:
+    """The rounds saved in `path` plus this run's (saved back), and the highest 1-minute load
+    average any of those runs started at."""
+    import dataclasses
+    import json
+
+    saved = json.loads(path.read_text()) if path.exists() else {"rounds": {}, "loads": []}
+    for tool, series in rounds.items():
+        saved["rounds"].setdefault(tool, []).extend(
+            {name: dataclasses.asdict(m) for name, m in got.items()} for got in series)
+    saved["loads"].append(list(load))
+    path.write_text(json.dumps(saved, indent=1))
+    every = {tool: [{name: Measure(m["seconds"], tuple(m["steps"]), m["wall_inside"]) for name, m in got.items()}
+                    for got in series] for tool, series in saved["rounds"].items()}
+    return every, tuple(max(loads) for loads in zip(*saved["loads"], strict=True))
+
+
 def with_goals(results: dict[str, Any]) -> dict[str, Any]:
     goals = report.goals(results.get("fleet", {}), results.get("fanout", {}))
     return {**results, "goals": [{**g.__dict__, "met": g.met} for g in goals]}
@@ -324,6 +347,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 fanout_error = str(exc)[:3000]
                 log(f"fan-out stopped: {fanout_error.splitlines()[0]}")
         fan_raw = {name: series for name, series in fan_raw.items() if series}
+        if args.rounds_file:
+            rounds, load_start = kept_rounds(args.rounds_file, rounds, load_start)
         results = build_results(args, argv, rounds, fan_raw, playbook, load_start)
         results.update(discarded_rounds=discarded, fanout_error=fanout_error)
         partial = args.scenarios != list(SCENARIOS)

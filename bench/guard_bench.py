@@ -86,6 +86,12 @@ def overhead(files: dict[str, Path], rounds: int) -> None:
         added += on - off
         print(f"  {name:<10} {off:>10.3f} {on:>10.3f} {on - off:>+8.3f}")
     print(f"  {'sum':<10} {'':>10} {'':>10} {added:>+8.3f}")
+    # The steps that arm nothing, where a guard container competing for the robot's CPU would show.
+    for name in sorted(set(steps["off"]) & set(steps["revert"]) - {*CARRIERS, "start"}):
+        off, on = statistics.median(steps["off"][name]), statistics.median(steps["revert"][name])
+        print(f"  {name:<10} {off:>10.3f} {on:>10.3f} {on - off:>+8.3f}  (arms nothing)")
+    for mode in ("off", "revert"):
+        print(f"  upgrade wall times, {mode}: {[round(w, 2) for w in walls[mode]]}")
     print(f"  wall time of the upgrade: off {statistics.median(walls['off']):.2f}, "
           f"revert {statistics.median(walls['revert']):.2f}")
     print(f"  no-op apply: off {statistics.median(noop['off']):.2f}, revert {statistics.median(noop['revert']):.2f}")
@@ -121,7 +127,9 @@ def recovery(fleet_file: Path, rounds: int) -> None:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--no-recovery", action="store_true", help="only the overhead part")
     args = p.parse_args()
+    print(f"load average at the start: {os.getloadavg()}")
     fleet = sim.reset(sim.default_home())
     with tempfile.TemporaryDirectory() as tmp:
         inventory = write_inventory(fleet, Path(tmp))
@@ -132,7 +140,9 @@ def main() -> None:
             files[mode] = write_fleet(folder, inventory, health={"timeout": "30s", "stable": "2s"},
                                       rollback={"guard": mode, "guard_margin": "5s"})
         overhead(files, args.rounds)
-        recovery(files["revert"], args.rounds)
+        if not args.no_recovery:
+            recovery(files["revert"], args.rounds)
+    print(f"load average at the end: {os.getloadavg()}")
 
 
 if __name__ == "__main__":

@@ -321,7 +321,7 @@ class RobotRun:
             for i, level in enumerate(levels):
                 if i:
                     ready = wait_healthy(self.t, self.spec, since=began, deadline=deadline, checks_only=True,
-                                         poller=poller, services=sum(levels[:i], ()))
+                                         poller=poller, services=sum(levels[:i], ()), fail_fast=True)
                     if not ready.ok:
                         return ready
                 names = level if len(levels) > 1 else ()   # one level: compose's own `up`
@@ -334,7 +334,7 @@ class RobotRun:
                 poller.seed(started_containers(out.stdout))
         with self.step("health"):
             return wait_healthy(self.t, self.spec, since=began, deadline=deadline, checks_only=together,
-                                poller=poller, services=services)
+                                poller=poller, services=services, fail_fast=not together)
 
     def history(self, entry: dict, rearm: bool = False) -> None:
         """`rearm`: this run goes on with its own rollback; the guard waits for that too."""

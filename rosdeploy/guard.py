@@ -112,7 +112,9 @@ def rearm_text(run: str, seconds: float, fields: Mapping[str, object]) -> str:
 
 
 def probe_spec(topics: list[dict], window: float) -> str:
-    return json.dumps({"topics": topics, "discovery_timeout": 10.0, "window": window}, sort_keys=True)
+    """The controller's probe, as the guard runs it (`finish` mode): a topic counts once it has a publisher."""
+    spec = {"topics": topics, "discovery_timeout": 10.0, "window": window, "published": True}  # health.DISCOVERY
+    return json.dumps(spec, sort_keys=True)
 
 
 # The guard itself: a fixed script shipped with the package, checked by shellcheck.

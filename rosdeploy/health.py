@@ -15,7 +15,7 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Callable, Mapping, TypeVar
 
 from rosdeploy import commands
 from rosdeploy.model import FleetSpec, HealthPolicy
@@ -28,6 +28,11 @@ OWN_TEST_EVERY = 1.0  # s between one-shot runs of a container's own health test
 WATCH_EVERY = 0.25    # s between tries of a watched test (inside the container)
 WATCH_WINDOW = 10.0   # s one watch loops before it ends and the next poll starts another
 FAST_WINDOW = 15.0   # s after a start during which the gate polls fast
+# s a new release's services may stay `starting` before the ROS probe looks for their topics
+# (a good demo node passes its own check in ~2.5 s here, so a healthy start costs no probe)
+EARLY_LOOK_AFTER = 3.0
+DISCOVERY = 10.0     # s the probe waits for a declared topic to appear on the ROS graph
+T = TypeVar("T")
 PROBE_SOURCE = (Path(__file__).parent / "ros_probe.py").read_text(encoding="utf-8")
 
 
@@ -117,6 +122,7 @@ class Poller:
         self.unwatchable: set[str] = set()     # container ids tested one exec at a time
         self.woken = threading.Event()         # a watch ended: poll now, not at the next tick
         self.fresh: tuple[Container, ...] | None = None   # read by `up` just now: the next poll
+        self.look: Future[Verdict] | None = None   # the early presence probe (look_for_topics)
 
     def seed(self, containers: tuple[Container, ...] | None) -> None:
         """Containers `up` listed after starting them: the next poll takes them instead of
@@ -184,10 +190,50 @@ class Poller:
         return False
 
 
-def _in_background(work: Callable[[], int], done: threading.Event) -> Future[int]:
+    def look_for_topics(self, containers: tuple[Container, ...], waiting: Mapping[str, str],
+                        since: float, deadline: float) -> Verdict | None:
+        """A new release still `starting` EARLY_LOOK_AFTER s after its start: one presence-only
+        probe (no rates) for the topics of the services already running. A topic still missing
+        after the whole discovery wait, while its container ran, fails the gate there: Docker's
+        own verdict would come only after the image's start period and retries (~20 s for the
+        demo's silent 1.2.0-bad). One look per start; a failure it cannot pin is left to Docker."""
+        if self.look is None:
+            if waiting and time.monotonic() - since >= EARLY_LOOK_AFTER:
+                running = {c.service for c in containers if c.status == "running"}
+                self.look = _start_look(self.t, self.spec, containers, running, deadline, self.woken)
+            return None
+        if not self.look.done() or self.look.exception() is not None:
+            return None
+        verdict = self.look.result()
+        return None if verdict.ok or not missing_topics(verdict) else verdict
+
+
+def _start_look(t: Transport, spec: FleetSpec, containers: tuple[Container, ...], running: set[str],
+                deadline: float, done: threading.Event) -> Future[Verdict]:
+    topics = [{"name": topic.name, "min_rate": None} for s in spec.services
+              if s.name in running and not s.profiles for topic in s.topics]
+    if not topics or probe_service(spec) not in running:
+        return _finished(Verdict(True, "nothing to look for yet"))
+    policy = replace(spec.health, topic_window=0.0)
+    return _in_background(lambda: _probe_graph(t, spec, containers, policy, deadline, topics), done)
+
+
+def _finished(verdict: Verdict) -> Future[Verdict]:
+    future: Future[Verdict] = Future()
+    future.set_result(verdict)
+    return future
+
+
+def missing_topics(verdict: Verdict) -> list[str]:
+    """Topics the probe waited for, the whole discovery wait, and never saw."""
+    report = (verdict.probe or {}).get("topics", {})
+    return sorted(name for name, t in report.items() if not t.get("present"))
+
+
+def _in_background(work: Callable[[], T], done: threading.Event) -> Future[T]:
     """A daemon thread: a watch still looping when the run ends must not hold up the exit
     (it stops by itself within WATCH_WINDOW). Sets `done` when it ends."""
-    future: Future[int] = Future()
+    future: Future[T] = Future()
 
     def target() -> None:
         try:
@@ -216,7 +262,7 @@ def settled(t: Transport, spec: FleetSpec, containers: tuple[Container, ...]) ->
 def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = None,
                  since: float | None = None, deadline: float | None = None,
                  checks_only: bool = False, poller: Poller | None = None,
-                 services: tuple[str, ...] | None = None) -> Verdict:
+                 services: tuple[str, ...] | None = None, fail_fast: bool = False) -> Verdict:
     """Poll until healthy, broken, or health.timeout. Not interruptible on purpose: once a
     release was started, the gate decides whether it stays or is rolled back.
 
@@ -230,6 +276,10 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
     start level before the next one (what `service_healthy` means), and for the brake:
     going back to a release that passed the whole gate before on this robot.
     `services`: only these (default: every expected service).
+    `fail_fast` (a new release): a declared topic that never appears on the ROS graph while
+    its container runs fails the gate when the probe's discovery wait ends, not when Docker
+    gives up on the container (see Poller.look_for_topics; the probe of the gate itself
+    counts the same way for the services that ran when it began).
     """
     policy = policy or spec.health
     if checks_only:
@@ -240,6 +290,7 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
     poller = poller or Poller(t, spec, watch=True)
     probe: Future[Verdict] | None = None
     early = True   # the running probe started before every service was healthy
+    ran: set[str] = set()   # services running when the probe began
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ros-probe") as pool:
         while True:
             containers, failure = poller.poll(expected)
@@ -248,7 +299,13 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
             waiting = unhealthy_services(containers, expected)
             if probe is None and not checks_only and _probe_can_start(spec, containers):
                 early = bool(waiting)
+                ran = {c.service for c in containers if c.status == "running"}
                 probe = pool.submit(_probe_graph, t, spec, containers, policy, deadline)
+            if fail_fast:
+                missing = _missing_early(probe, ran, spec) if not checks_only else \
+                    poller.look_for_topics(containers, waiting, start, deadline)
+                if missing is not None:
+                    return replace(missing, reason=_never_appeared(missing, waiting), containers=containers)
             if not waiting and time.monotonic() - start >= policy.stable:
                 if checks_only:
                     return Verdict(True, "running and passing health checks", containers=containers)
@@ -262,6 +319,24 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
                 return Verdict(False, f"{service}: {why} after {policy.timeout:g}s (health.timeout)",
                                service or None, containers=containers)
             poller.nap(poll_interval(policy, start, watched=poller.watching(containers, waiting)))
+
+
+def _missing_early(probe: Future[Verdict] | None, ran: set[str], spec: FleetSpec) -> Verdict | None:
+    """The gate's own probe, done before every service was healthy: a failure if a topic of a
+    service that ran all along never appeared (a later service's topic may still come)."""
+    if probe is None or not probe.done() or probe.exception() is not None:
+        return None
+    verdict = probe.result()
+    owners = {topic.name: s.name for s in spec.services for topic in s.topics}
+    if verdict.ok or not any(owners.get(name) in ran for name in missing_topics(verdict)):
+        return None
+    return verdict
+
+
+def _never_appeared(verdict: Verdict, waiting: Mapping[str, str]) -> str:
+    names = ", ".join(missing_topics(verdict))
+    still = f" (Docker: {'; '.join(f'{s} {why}' for s, why in waiting.items())})" if waiting else ""
+    return f"topic {names}: no publisher on the ROS graph {DISCOVERY:g}s after its container started{still}"
 
 
 def poll_interval(policy: HealthPolicy, since: float, watched: bool = False) -> float:
@@ -303,8 +378,8 @@ def probe_service(spec: FleetSpec) -> str | None:
 
 
 def _probe_graph(t: Transport, spec: FleetSpec, containers: tuple[Container, ...],
-                 policy: HealthPolicy, deadline: float) -> Verdict:
-    topics = topics_spec(spec)
+                 policy: HealthPolicy, deadline: float, topics: list[dict] | None = None) -> Verdict:
+    topics = topics_spec(spec) if topics is None else topics
     service = probe_service(spec)
     if not topics or service is None:
         return Verdict(True, "containers healthy (no ROS topics declared)", containers=containers)
@@ -312,7 +387,8 @@ def _probe_graph(t: Transport, spec: FleetSpec, containers: tuple[Container, ...
     if container is None:
         return Verdict(False, f"no running container of {service} to probe the ROS graph from", service)
     left = max(deadline - time.monotonic(), 2.0)
-    arg = {"topics": topics, "discovery_timeout": min(10.0, left), "window": policy.topic_window}
+    arg = {"topics": topics, "discovery_timeout": min(DISCOVERY, left), "window": policy.topic_window,
+           "published": True}
     result = t.run(commands.ros_probe(container.name, PROBE_SOURCE, arg, timeout=left + policy.topic_window + 15))
     report = _last_json(result.stdout)
     if result.ok and report:
@@ -336,7 +412,7 @@ def _probe_failure(report: dict | None, stderr: str) -> str:
     bad = []
     for name, t in sorted(report.get("topics", {}).items()):
         if not t.get("present"):
-            bad.append(f"topic {name} not on the ROS graph (domain {report.get('domain')})")
+            bad.append(f"topic {name} not on the ROS graph (domain {report.get('domain')}): no publisher")
         elif not t.get("ok"):
             bad.append(f"topic {name} at {t.get('rate', 0):g} Hz, below min_rate {t.get('min_rate'):g} Hz")
     return "; ".join(bad) or "ROS graph probe failed"

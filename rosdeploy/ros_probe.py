@@ -19,11 +19,16 @@ def _message_class(type_name):
     return getattr(importlib.import_module(package + ".msg"), name)
 
 
-def _discover(node, rclpy, wanted, timeout):
+def _discover(node, rclpy, wanted, timeout, published=False):
+    """Topic -> types once every wanted topic is on the graph (or the timeout). `published`:
+    only topics with a publisher count (a subscriber, e.g. an image's health watcher, puts
+    a topic on the graph too)."""
     deadline = time.monotonic() + timeout
     found = {}
     while time.monotonic() < deadline:
         found = dict(node.get_topic_names_and_types())
+        if published:
+            found = {n: t for n, t in found.items() if n not in wanted or node.count_publishers(n) > 0}
         if wanted <= set(found):
             break
         rclpy.spin_once(node, timeout_sec=0.1)
@@ -63,7 +68,7 @@ def probe(spec):
     node = rclpy.create_node("rosdeploy_probe_%d" % os.getpid())
     try:
         topics = {t["name"]: t.get("min_rate") for t in spec["topics"]}
-        found = _discover(node, rclpy, set(topics), spec.get("discovery_timeout", 10.0))
+        found = _discover(node, rclpy, set(topics), spec.get("discovery_timeout", 10.0), spec.get("published", False))
         rated = {n: r for n, r in topics.items() if r and n in found}
         rates = _measure(node, rclpy, rated, found, spec.get("window", 3.0)) if rated else {}
     finally:

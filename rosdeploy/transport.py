@@ -18,9 +18,11 @@ import os
 import random
 import select
 import socket
+import threading
 import time
+from concurrent.futures import Future
 from dataclasses import dataclass, replace
-from typing import Callable, Protocol
+from typing import Callable, Protocol, Sequence
 
 import paramiko
 from fabric import Config, Connection
@@ -420,3 +422,48 @@ def local_user_at_host() -> str:
         user = str(os.getuid())
     return f"{user}@{socket.gethostname()}"
 
+
+
+class EarlyConnect:
+    """Connections opened in the background while the controller renders and checks the release.
+
+    A no-op `apply` is one connection and one round trip per robot; most of a connection is
+    waiting for the robot (key exchange, login), and rendering is work on this machine, so the
+    two overlap instead of adding up (README "Performance"). Only the first wave's robots: a
+    later wave may start minutes later. A failed connect raises where the run connects; one the
+    run never takes (declined, input error) is closed when it is done, without waiting for it
+    (daemon threads: an unreachable robot does not hold up an input error for connect_timeout).
+    """
+
+    def __init__(self, hosts: Sequence[Host], options: SSHOptions,
+                 connect: Callable[[Host, SSHOptions], Transport] = connect) -> None:
+        self.options, self.plain = options, connect
+        self.pending = {h.name: _background(functools.partial(connect, h, options)) for h in hosts}
+
+    def connect(self, host: Host, options: SSHOptions) -> Transport:
+        future = self.pending.pop(host.name, None)
+        if future is None or options != self.options:
+            return self.plain(host, options)
+        return future.result()
+
+    def close(self) -> None:
+        for future in self.pending.values():
+            future.add_done_callback(_close_unused)
+        self.pending.clear()
+
+
+def _close_unused(future: "Future[Transport]") -> None:
+    if future.exception() is None:
+        future.result().close()
+
+
+def _background(work: Callable[[], Transport]) -> "Future[Transport]":
+    future: Future[Transport] = Future()
+
+    def target() -> None:
+        try:
+            future.set_result(work())
+        except BaseException as exc:     # re-raised by .result() in the robot's thread
+            future.set_exception(exc)
+    threading.Thread(target=target, name="early-connect", daemon=True).start()
+    return future

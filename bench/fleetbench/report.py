@@ -82,21 +82,28 @@ def fleet_section(rounds: Mapping[str, Sequence[Mapping[str, Measure]]]) -> dict
         ours = [r[scenario] for r in rounds.get("rosdeploy", ())]
         theirs = [r[scenario] for r in rounds.get("ansible", ())]
         minimal = [r[scenario] for r in rounds.get("ansible-minimal", ())]
+        at_once = [r[scenario] for r in rounds.get("rosdeploy-at-once", ())]
         entry = {"title": TITLES[scenario],
                  "rosdeploy": [round(m.seconds, 3) for m in ours], "ansible": [round(m.seconds, 3) for m in theirs],
                  "ansible_minimal": [round(m.seconds, 3) for m in minimal],
+                 "rosdeploy_at_once": [round(m.seconds, 3) for m in at_once],
+                 "rosdeploy_at_once_median": _r(median(m.seconds for m in at_once)),
                  "rosdeploy_median": _r(median(m.seconds for m in ours)),
                  "ansible_median": _r(median(m.seconds for m in theirs)),
                  "ansible_minimal_median": _r(median(m.seconds for m in minimal))}
         entry["speedup"] = _r(speedup(entry["rosdeploy_median"], entry["ansible_median"]), 2)
         floor = [r[scenario] for r in rounds.get(SSH_FLOOR, ()) if scenario in r]
-        if floor:
+        if floor and entry["rosdeploy_median"] is not None:
             entry["ssh_floor"] = [round(m.seconds, 3) for m in floor]
             entry["ssh_floor_median"] = _r(median(m.seconds for m in floor))
             entry["above_ssh_floor"] = _r(entry["rosdeploy_median"] - entry["ssh_floor_median"])
         # Issue #19 states its targets as rosdeploy's time over the minimal playbook's.
         entry["ratio_minimal"] = _r(speedup(entry["ansible_minimal_median"], entry["rosdeploy_median"]), 2)
         entry["ratio_equal_work"] = _r(speedup(entry["ansible_median"], entry["rosdeploy_median"]), 2)
+        # The same shape as minimal.yml: every robot at once (the demo fleet deploys a canary first).
+        entry["ratio_minimal_at_once"] = _r(speedup(entry["ansible_minimal_median"],
+                                                    entry["rosdeploy_at_once_median"]), 2)
+        entry["rosdeploy_at_once_steps"] = step_medians(at_once)
         entry["rosdeploy_steps"] = step_medians(ours)
         entry["rosdeploy_overhead"] = _r(overhead(ours))
         out[scenario] = entry
@@ -158,21 +165,23 @@ def _r(value: float | None, digits: int = 3) -> float | None:
 
 # ------------------------------------------------------------------- table
 
-def table_rows(results: Mapping[str, Any]) -> list[tuple[str, str, str, str]]:
+def table_rows(results: Mapping[str, Any]) -> list[tuple[str, ...]]:
     rows = []
     robots = results["config"]["robots"]
     for entry in results.get("fleet", {}).values():
         rows.append((f"{entry['title']} ({robots} robots)", _s(entry["rosdeploy_median"]),
                      _s(entry["ansible_median"]), _x(entry["speedup"]),
-                     _s(entry.get("ansible_minimal_median")), _f(entry.get("ratio_minimal"))))
+                     _s(entry.get("ansible_minimal_median")), _f(entry.get("ratio_minimal")),
+                     _s(entry.get("rosdeploy_at_once_median")), _f(entry.get("ratio_minimal_at_once"))))
     fan = results.get("fanout", {})
     for n in fan.get("sizes", []):
         first, status = _get(fan, "status_first", n), _get(fan, "status", n)
         ours, theirs = _get(fan, "rosdeploy_noop", n), _get(fan, "ansible_noop", n)
-        rows.append((f"fan-out: status, {n} targets, connecting", _s(first.get("median")), "—", "", "", ""))
-        rows.append((f"fan-out: status, {n} targets, connections held", _s(status.get("median")), "—", "", "", ""))
+        rows.append((f"fan-out: status, {n} targets, connecting", _s(first.get("median")), "—", "", "", "", "", ""))
+        rows.append((f"fan-out: status, {n} targets, connections held", _s(status.get("median")), "—", "", "", "",
+                     "", ""))
         rows.append((f"fan-out: no-op apply, {n} targets", _s(ours.get("median")), _s(theirs.get("median")),
-                     _x(speedup(ours.get("median"), theirs.get("median"))), "", ""))
+                     _x(speedup(ours.get("median"), theirs.get("median"))), "", "", "", ""))
     return rows
 
 
@@ -217,7 +226,8 @@ def markdown_table(rows: Sequence[tuple[str, ...]], header: Sequence[str]) -> st
 
 
 HEADER = ("scenario", "rosdeploy (median)", "Ansible, equal work (median)", "speedup",
-          "Ansible, minimal (median)", "rosdeploy ÷ minimal")
+          "Ansible, minimal (median)", "rosdeploy ÷ minimal", "rosdeploy, all robots at once (median)",
+          "at once ÷ minimal")
 
 
 def goal_lines(results: Mapping[str, Any]) -> list[str]:

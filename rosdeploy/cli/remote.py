@@ -23,6 +23,7 @@ if TYPE_CHECKING:   # model.py costs 7 ms of dataclasses at import; --help needs
     from rosdeploy.deploy import RunContext
     from rosdeploy.model import FleetSpec
     from rosdeploy.results import FleetResult
+    from rosdeploy.transport import EarlyConnect, SSHOptions
 
 RUN_CODES = (EXIT_OK, EXIT_PARTIAL, EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED)
 READ_CODES = (EXIT_OK, EXIT_PARTIAL, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED)
@@ -114,10 +115,13 @@ def _add_run_args(p: Parser) -> None:
 
 # ----------------------------------------------------------------- loading
 
-def load(args: argparse.Namespace, out: Output, render: bool = True) -> tuple[Any, tuple[Host, ...], dict]:
+def load(args: argparse.Namespace, out: Output, render: bool = True,
+         on_targets: Callable[[Any, tuple[Host, ...]], None] = lambda project, hosts: None,
+         ) -> tuple[Any, tuple[Host, ...], dict]:
     """Fleet file + inventory + targets (+ releases), validated: input errors stop here, before any robot.
     `render=False` (rollback): the releases kept on the robots are what runs, so neither the time
-    to render nor a template error in what would be deployed next may hold up going back."""
+    to render nor a template error in what would be deployed next may hold up going back.
+    `on_targets`: called once the targets are known, before rendering (apply's early connections)."""
     from rosdeploy.project import deployable, load_project
 
     project = load_project(args.fleet, inventory=args.inventory, version=getattr(args, "release_version", None),
@@ -127,6 +131,7 @@ def load(args: argparse.Namespace, out: Output, render: bool = True) -> tuple[An
         from rosdeploy.cli import pending as pending_cli
         hosts = pending_cli.with_pending(project, hosts, out)
     out.mask(project.secret_values)
+    on_targets(project, hosts)
     if not render:
         return project, hosts, {}
     releases, warnings = deployable(project, hosts)
@@ -138,15 +143,43 @@ def load(args: argparse.Namespace, out: Output, render: bool = True) -> tuple[An
 def context(args: argparse.Namespace, spec: FleetSpec, progress: Callable[[str, str], None]) -> RunContext:
     from rosdeploy import runlog
     from rosdeploy.deploy import RunContext
-    from rosdeploy.transport import SSHOptions, local_user_at_host
+    from rosdeploy.transport import local_user_at_host
 
-    ssh = SSHOptions(known_hosts=spec.known_hosts, ssh_config=spec.ssh_config,
-                     connect_timeout=spec.connect_timeout, command_timeout=spec.command_timeout)
-    return RunContext(spec=spec, ssh=ssh, run_id=runlog.new_run_id(), operator=local_user_at_host(),
+    return RunContext(spec=spec, ssh=ssh_options(spec), run_id=runlog.new_run_id(), operator=local_user_at_host(),
                       progress=progress, lock_wait=getattr(args, "lock_wait", 0.0),
                       break_lock=getattr(args, "break_lock", False), force=getattr(args, "force", False),
                       host_changes=not getattr(args, "no_host_changes", False),
                       become_password=getattr(args, "become_password", None))
+
+
+def ssh_options(spec: FleetSpec) -> "SSHOptions":
+    from rosdeploy.transport import SSHOptions
+
+    return SSHOptions(known_hosts=spec.known_hosts, ssh_config=spec.ssh_config,
+                      connect_timeout=spec.connect_timeout, command_timeout=spec.command_timeout)
+
+
+class EarlyConnections:
+    """apply --yes: the first wave's connections open while the release renders (transport.EarlyConnect)."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.early: "EarlyConnect | None" = None
+
+    def start(self, project: Any, hosts: tuple[Host, ...]) -> None:
+        from rosdeploy.rollout import plan_waves
+        from rosdeploy.transport import EarlyConnect
+
+        if self.args.yes and hosts:
+            first = plan_waves(hosts, _policy(project.spec.rollout, self.args))[0]
+            self.early = EarlyConnect(first, ssh_options(project.spec))
+
+    def use(self, ctx: "RunContext") -> "RunContext":
+        return replace(ctx, connect=self.early.connect) if self.early else ctx
+
+    def close(self) -> None:
+        if self.early:
+            self.early.close()
 
 
 def host_change_args(args: argparse.Namespace, out: Output) -> None:
@@ -172,11 +205,19 @@ def _confirmed(args: argparse.Namespace, out: Output, question: str) -> bool:
 # ---------------------------------------------------------------- commands
 
 def cmd_apply(args: argparse.Namespace, out: Output) -> int:
-    from rosdeploy.cli import report
+    early = EarlyConnections(args)
+    try:
+        return _apply(args, out, early)
+    finally:
+        early.close()
+
+
+def _apply(args: argparse.Namespace, out: Output, early: EarlyConnections) -> int:
     from rosdeploy.cli import pending as pending_cli
+    from rosdeploy.cli import report
     from rosdeploy.rollout import apply_fleet
 
-    project, hosts, releases = load(args, out)
+    project, hosts, releases = load(args, out, on_targets=early.start)
     host_change_args(args, out)
     spec = project.spec
     policy = _policy(spec.rollout, args)
@@ -185,7 +226,7 @@ def cmd_apply(args: argparse.Namespace, out: Output) -> int:
     supply = images.supply(args, out, spec, hosts, releases)     # every tag pinned to its digest, once
     try:
         with report.progress_view(out, [h.name for h in hosts]) as view:
-            ctx = replace(context(args, spec, view.progress), images=supply)
+            ctx = early.use(replace(context(args, spec, view.progress), images=supply))
             notify = pending_cli.notifier(out, spec, ctx.run_id, report.rollout_notifier(out, args, view))
             until = time.monotonic() + args.until if args.until else None
             result = apply_fleet(ctx, hosts, releases, policy, notify, until=until)

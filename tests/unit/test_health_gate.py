@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 
 from rosdeploy.commands import Command
 from dataclasses import replace
@@ -208,3 +209,37 @@ def test_the_containers_up_listed_are_the_first_poll_with_no_round_trip() -> Non
     _, failure = poller.poll(("driver", "perception"))     # the seed is used once: this one reads
     assert ran == ["containers"]
     assert failure == ("driver", "container demo-driver-1 health check reports unhealthy")
+
+
+SLOW = replace(SPEC, health=HealthPolicy(timeout=30.0, stable=0.0, interval=0.01, topic_window=0.1))
+ABSENT = {"topics": {"/joint_states": {"present": False, "ok": False, "min_rate": None}}, "domain": "11"}
+
+
+def test_a_topic_never_published_fails_a_new_start_before_docker_gives_up(monkeypatch) -> None:
+    monkeypatch.setattr("rosdeploy.health.EARLY_LOOK_AFTER", 0.0)
+    t = Scripted([[c("driver", health="starting")]], ABSENT)
+    verdict = wait_healthy(t, SLOW, checks_only=True, services=("driver",), fail_fast=True,
+                           deadline=time.monotonic() + 10)
+    assert not verdict.ok and verdict.service == "driver"
+    assert "/joint_states: no publisher on the ROS graph" in verdict.reason and "health starting" in verdict.reason
+    assert t.probes == 1
+
+
+def test_going_back_never_judges_by_the_early_look(monkeypatch) -> None:
+    monkeypatch.setattr("rosdeploy.health.EARLY_LOOK_AFTER", 0.0)
+    t = Scripted([[c("driver", health="starting")]], ABSENT)
+    verdict = wait_healthy(t, SLOW, checks_only=True, services=("driver",), deadline=time.monotonic() + 0.3)
+    assert not verdict.ok and "health.timeout" in verdict.reason and t.probes == 0
+
+
+def test_the_gate_probe_fails_early_only_for_topics_of_services_that_ran(monkeypatch) -> None:
+    spec = replace(SLOW, services=(SPEC.services[0], replace(SPEC.services[1], topics=(Topic("/detections", 2.0),))))
+    perception_late = {"topics": {"/joint_states": {"present": True, "ok": True, "rate": 10, "min_rate": 5},
+                                  "/detections": {"present": False, "ok": False, "min_rate": 2}}}
+    t = Scripted([[c("driver", health="starting")], [c("driver", health="starting")], [c("driver"), c("perception")]],
+                 perception_late)
+    verdict = wait_healthy(t, spec, fail_fast=True, deadline=time.monotonic() + 0.5)
+    assert "/detections" in verdict.reason and "no publisher on the ROS graph 10s" not in verdict.reason
+    t = Scripted([[c("driver", health="starting"), c("perception", health="starting")]], ABSENT)
+    verdict = wait_healthy(t, spec, fail_fast=True, deadline=time.monotonic() + 10)
+    assert not verdict.ok and "/joint_states: no publisher on the ROS graph" in verdict.reason

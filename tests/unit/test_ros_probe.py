@@ -53,3 +53,19 @@ def test_a_topic_below_its_min_rate_is_measured_for_the_whole_window() -> None:
     rates = ros_probe._measure(FakeNode(), FakeRclpy, {"/fast": 1000.0}, {"/fast": ["t"]}, 0.3)
     assert time.monotonic() - began >= 0.3
     assert 0 < rates["/fast"] < 1000.0
+
+
+class GraphNode(FakeNode):
+    """/watched has only a subscriber (an image's health watcher); /published has a publisher."""
+
+    def get_topic_names_and_types(self):
+        return [("/watched", ["std_msgs/msg/String"]), ("/published", ["std_msgs/msg/String"])]
+
+    def count_publishers(self, name: str) -> int:
+        return 1 if name == "/published" else 0
+
+
+def test_a_topic_with_only_subscribers_is_not_found_when_publishers_count() -> None:
+    found = ros_probe._discover(GraphNode(), FakeRclpy, {"/watched", "/published"}, 0.2, published=True)
+    assert "/published" in found and "/watched" not in found
+    assert {"/watched", "/published"} <= set(ros_probe._discover(GraphNode(), FakeRclpy, {"/watched"}, 0.2))
