@@ -151,7 +151,8 @@ class RobotRun:
                   "keep": self.spec.rollback.keep_releases, "probe": probe_service(self.spec) or "",
                   "margin": int(self.spec.rollback.guard_margin)}
         files = (guard.GUARD_SCRIPT, commands.UP_SCRIPT, commands.FINISH_SCRIPT, commands.ROS_PROBE_SCRIPT,
-                 PROBE_SOURCE, guard.probe_spec(topics_spec(self.spec), self.spec.health.topic_window))
+                 PROBE_SOURCE, guard.probe_spec(topics_spec(self.spec), self.spec.health.topic_window,
+                                                 self.spec.health.topics_within))
         self.armed = guard.Guard(run=self.ctx.run_id, by=self.ctx.operator, mode=self.spec.rollback.guard,
                                  phase="prepare", target=release.release_id, previous=state.current,
                                  deadline=None)
@@ -595,6 +596,16 @@ def rollback_host(ctx: RunContext, host: Host, to_version: str | None = None,
         run.close()
 
 
+DAEMON_GONE = "Cannot connect to the Docker daemon"   # the docker CLI's words when dockerd is not there
+
+
+def _engine_gone(verdict: Verdict, release: str) -> bool:
+    """The switch failed because the robot's Docker engine did not answer, and nothing of
+    `release` runs."""
+    return DAEMON_GONE in verdict.reason and not any(c.status == "running" and c.release == release
+                                                     for c in verdict.containers)
+
+
 def _rollback_flavor(run: RobotRun, state: RobotState) -> str | None:
     """The compose flavour to switch with: as the history recorded it, else as the running
     containers' labels tell it (quick), else the full state's (an emergency skips the
@@ -625,6 +636,14 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     services = release_services(manifest) if manifest is not None else None
     run.rollback_to(state, target, flavor, services)
     verdict = run.start(target, flavor, together=passed_gate(state, target), services=services)
+    if not verdict.ok and run.armed is not None and _engine_gone(verdict, target):
+        # dockerd went away under the switch (the robot is rebooting, or its engine restarts):
+        # activating would name a release none of which runs, and the stopped containers of the
+        # one left come back with dockerd. The armed guard starts with dockerd, finishes the
+        # rollback at once (a reboot) or at its deadline, and releases the lock.
+        run.locked = False
+        return run.result(FAILED, reason=f"the switch to {target} did not start ({verdict.reason})"
+                                         f"{run.guard_note()}", **base)
     _host_changes(run, target)   # the kept release's rules, after the switch (one round trip to it)
     run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
                           "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback",

@@ -338,6 +338,13 @@ def _positive(r: Reader, kp: KeyPath, value: Any) -> Any:
     return float(value)
 
 
+def _positive_duration(r: Reader, kp: KeyPath, value: Any) -> Any:
+    seconds = _duration(r, kp, value)
+    if seconds <= 0:
+        raise Invalid(f"must be a duration above 0, like 10s or 1m; got {value!r}")
+    return seconds
+
+
 def _duration(r: Reader, kp: KeyPath, value: Any) -> Any:
     try:
         return parse_duration(value)
@@ -665,7 +672,8 @@ SECTIONS: dict[str, Mapping[str, Convert]] = {
     "logging": {"max_size": _size, "max_file": _integer(1), "rotate_every": _rotate_every},
     "preflight": {"min_free_disk_mb": _integer(0)},
     "health": {"timeout": _duration, "stable": _duration, "interval": _duration,
-               "topic_window": _duration, "probe_service": _string(NAME_RE, "service name")},
+               "topic_window": _duration, "topics_within": _positive_duration,
+               "probe_service": _string(NAME_RE, "service name")},
     "rollout": {"waves": _listof(_wave, "waves"), "max_fail": _max_fail, "forks": _integer(1),
                 "order_by": _order_by, "pause": _duration,
                 "retry": _duration, "retry_max": _duration, "count_busy": _boolean},

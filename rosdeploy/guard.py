@@ -111,9 +111,9 @@ def rearm_text(run: str, seconds: float, fields: Mapping[str, object]) -> str:
     return f"{run} {int(seconds)}\n{state_text(fields)}"
 
 
-def probe_spec(topics: list[dict], window: float) -> str:
+def probe_spec(topics: list[dict], window: float, within: float) -> str:
     """The controller's probe, as the guard runs it (`finish` mode): a topic counts once it has a publisher."""
-    spec = {"topics": topics, "discovery_timeout": 10.0, "window": window, "published": True}  # health.DISCOVERY
+    spec = {"topics": topics, "discovery_timeout": within, "window": window, "published": True}
     return json.dumps(spec, sort_keys=True)
 
 

@@ -31,7 +31,6 @@ FAST_WINDOW = 15.0   # s after a start during which the gate polls fast
 # s a new release's services may stay `starting` before the ROS probe looks for their topics
 # (a good demo node passes its own check in ~2.5 s here, so a healthy start costs no probe)
 EARLY_LOOK_AFTER = 3.0
-DISCOVERY = 10.0     # s the probe waits for a declared topic to appear on the ROS graph
 T = TypeVar("T")
 PROBE_SOURCE = (Path(__file__).parent / "ros_probe.py").read_text(encoding="utf-8")
 
@@ -305,7 +304,8 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
                 missing = _missing_early(probe, ran, spec) if not checks_only else \
                     poller.look_for_topics(containers, waiting, start, deadline)
                 if missing is not None:
-                    return replace(missing, reason=_never_appeared(missing, waiting), containers=containers)
+                    return replace(missing, reason=_never_appeared(missing, waiting, policy.topics_within),
+                                   containers=containers)
             if not waiting and time.monotonic() - start >= policy.stable:
                 if checks_only:
                     return Verdict(True, "running and passing health checks", containers=containers)
@@ -333,10 +333,11 @@ def _missing_early(probe: Future[Verdict] | None, ran: set[str], spec: FleetSpec
     return verdict
 
 
-def _never_appeared(verdict: Verdict, waiting: Mapping[str, str]) -> str:
+def _never_appeared(verdict: Verdict, waiting: Mapping[str, str], within: float) -> str:
     names = ", ".join(missing_topics(verdict))
     still = f" (Docker: {'; '.join(f'{s} {why}' for s, why in waiting.items())})" if waiting else ""
-    return f"topic {names}: no publisher on the ROS graph {DISCOVERY:g}s after its container started{still}"
+    return (f"topic {names}: no publisher on the ROS graph {within:g}s after its container started (health."
+            f"topics_within){still}")
 
 
 def poll_interval(policy: HealthPolicy, since: float, watched: bool = False) -> float:
@@ -387,7 +388,7 @@ def _probe_graph(t: Transport, spec: FleetSpec, containers: tuple[Container, ...
     if container is None:
         return Verdict(False, f"no running container of {service} to probe the ROS graph from", service)
     left = max(deadline - time.monotonic(), 2.0)
-    arg = {"topics": topics, "discovery_timeout": min(DISCOVERY, left), "window": policy.topic_window,
+    arg = {"topics": topics, "discovery_timeout": min(policy.topics_within, left), "window": policy.topic_window,
            "published": True}
     result = t.run(commands.ros_probe(container.name, PROBE_SOURCE, arg, timeout=left + policy.topic_window + 15))
     report = _last_json(result.stdout)

@@ -120,6 +120,9 @@ class HealthPolicy:
     stable: float = 5.0         # seconds every container must stay up without restarting
     interval: float = 1.0       # seconds between container polls
     topic_window: float = 3.0   # seconds the ROS probe listens to measure rates
+    # seconds a declared topic may take to get a publisher; past it the gate fails without
+    # waiting for Docker's verdict (raise it for nodes that advertise late, e.g. lifecycle nodes)
+    topics_within: float = 10.0
     probe_service: str | None = None   # where the ROS probe runs; None: first service with topics
 
 

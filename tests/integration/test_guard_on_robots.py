@@ -208,7 +208,9 @@ class Lane:
         except (ValueError, IndexError, KeyError):
             problems.append(f"no result document from the controller: {err[-300:]}")
             return
-        if "connection lost during" not in host["reason"] or "guard" not in host["reason"]:
+        # A reboot takes dockerd down before sshd: the switch can fail on the engine first.
+        lost = "connection lost during" in host["reason"] or "did not start" in host["reason"]
+        if not lost or "guard" not in host["reason"]:
             problems.append(f"the controller's reason does not say where it lost the robot and what the "
                             f"guard does: {host['reason']!r}")
 

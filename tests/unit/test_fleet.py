@@ -542,3 +542,10 @@ def test_mutated_fleet_files_give_problems_never_a_crash(fleet_dir: Path) -> Non
             load_fleet(write(fleet_dir, data))
         except FleetSpecError as exc:
             assert exc.problems and all(p.file and p.message for p in exc.problems)
+
+
+def test_topics_within_is_a_positive_duration(fleet_dir: Path) -> None:
+    spec = load_fleet(write(fleet_dir, merge(BASE, {"health": {"topics_within": "45s"}})))
+    assert spec.health.topics_within == 45.0
+    assert load_fleet(write(fleet_dir, BASE)).health.topics_within == 10.0
+    one(fleet_dir, {"health": {"topics_within": "0s"}}, "health.topics_within", "above 0")

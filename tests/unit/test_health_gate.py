@@ -243,3 +243,21 @@ def test_the_gate_probe_fails_early_only_for_topics_of_services_that_ran(monkeyp
     t = Scripted([[c("driver", health="starting"), c("perception", health="starting")]], ABSENT)
     verdict = wait_healthy(t, spec, fail_fast=True, deadline=time.monotonic() + 10)
     assert not verdict.ok and "/joint_states: no publisher on the ROS graph" in verdict.reason
+
+
+def test_topics_within_sets_the_probe_wait_and_names_itself(monkeypatch) -> None:
+    monkeypatch.setattr("rosdeploy.health.EARLY_LOOK_AFTER", 0.0)
+    sent: list[dict] = []
+    t = Scripted([[c("driver", health="starting")]], ABSENT)
+    answer = t.run
+
+    def run(command):   # the probe's JSON argument, as the robot gets it
+        if command.label.startswith("ros-probe"):
+            sent.append(json.loads(command.argv[-1]))
+        return answer(command)
+    t.run = run   # type: ignore[method-assign]
+    spec = replace(SLOW, health=replace(SLOW.health, topics_within=45.0))
+    verdict = wait_healthy(t, spec, checks_only=True, services=("driver",), fail_fast=True,
+                           deadline=time.monotonic() + 60)
+    assert not verdict.ok and "45s after its container started (health.topics_within)" in verdict.reason
+    assert sent and all(s["discovery_timeout"] == 45.0 for s in sent)

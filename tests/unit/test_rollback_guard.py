@@ -190,3 +190,16 @@ def test_the_controller_s_activation_disarms_the_rollback_s_guard_and_a_lost_run
     lost.locked, lost.lost = True, True
     lost.close()
     assert transport.calls == []                          # no unlock: it would disarm the guard
+
+
+def test_a_switch_that_lost_dockerd_is_left_to_the_guard_only_when_nothing_of_the_target_runs() -> None:
+    from rosdeploy.deploy import _engine_gone
+    from rosdeploy.health import Verdict
+    from rosdeploy.robot import Container
+    gone = "compose up failed: Cannot connect to the Docker daemon at unix:///var/run/docker.sock."
+    target = "1.0.0-aaaa"
+    old = Container("demo-driver-1", "driver", "x", "running", None, 0, workdir="/r/demo/releases/1.1.0-bbbb")
+    new = Container("demo-driver-1", "driver", "x", "running", None, 0, workdir=f"/r/demo/releases/{target}")
+    assert _engine_gone(Verdict(False, gone, containers=(old,)), target)
+    assert not _engine_gone(Verdict(False, gone, containers=(new,)), target)
+    assert not _engine_gone(Verdict(False, "compose up failed: port is already allocated"), target)
