@@ -75,10 +75,18 @@ def robot_sh(robot: str, script: str) -> str:
 
 
 def remove_images(robot: str, tags: tuple[str, ...]) -> None:
-    """Drop the demo images of `tags` on a robot (and the layers no other image holds)."""
+    """Drop the demo images of `tags` on a robot (and the layers no other image holds).
+
+    Again while one is left: a previous run's deploy guard may still be starting in the
+    background (it runs from a release image, and leaves by itself once it finds itself
+    disarmed), holding its image for a moment after the containers were removed."""
     refs = " ".join(f"registry.local:5000/demo/{n}:{t}" for n in NODES for t in tags)
-    robot_sh(robot, f"docker ps -aq | xargs -r docker rm -f >/dev/null; docker rmi -f {refs} >/dev/null 2>&1; "
-                    "docker image prune -f >/dev/null; true")
+    for _ in range(15):
+        robot_sh(robot, f"docker ps -aq | xargs -r docker rm -f >/dev/null; docker rmi -f {refs} >/dev/null 2>&1; "
+                        "docker image prune -f >/dev/null; true")
+        if not robot_sh(robot, f"for ref in {refs}; do docker images -q \"$ref\"; done").strip():
+            return
+        time.sleep(1)
 
 
 def image_ids(shell: RobotShell) -> dict[str, str]:
