@@ -339,10 +339,7 @@ def _positive(r: Reader, kp: KeyPath, value: Any) -> Any:
 
 
 def _positive_duration(r: Reader, kp: KeyPath, value: Any) -> Any:
-    seconds = _duration(r, kp, value)
-    if seconds <= 0:
-        raise Invalid(f"must be a duration above 0, like 10s or 1m; got {value!r}")
-    return seconds
+    return _positive(r, kp, _duration(r, kp, value))
 
 
 def _duration(r: Reader, kp: KeyPath, value: Any) -> Any:
