@@ -442,16 +442,48 @@ def apply_host(ctx: RunContext, host: Host, release: RenderedRelease) -> HostRes
         run.close()
 
 
+def precheck_host(ctx: RunContext, host: Host, release: RenderedRelease) -> tuple[HostResult | None, Transport | None]:
+    """The no-op check alone, one round trip, before a rollout in waves plans them.
+
+    Returns the robot's final result when it has one already (UNCHANGED; UNREACHABLE, which
+    its wave reports rather than waiting for connect_timeout twice), or else its open
+    connection for the rollout to go on with. A command that fails leaves the verdict to the
+    robot's wave, which says what failed in its own words."""
+    run = RobotRun(ctx, host)
+    try:
+        run.open()
+        done = _unchanged(run, release, run.read_state(full=False))
+    except ConnectError as exc:
+        run.close()
+        return run.result(UNREACHABLE, new_release=release.release_id, reason=str(exc)), None
+    except RemoteError:
+        run.close()
+        return None, None
+    if done is not None:
+        run.close()
+        return done, None
+    return None, run.t
+
+
+def _unchanged(run: RobotRun, release: RenderedRelease, state: RobotState) -> HostResult | None:
+    """UNCHANGED when the robot runs this release, healthy and unlocked: nothing to do."""
+    if state.current == release.release_id:    # just deployed: judge `starting` services the way the gate did
+        state = replace(state, containers=settled(run.t, run.spec, state.containers))
+    if state.lock is None and up_to_date(state, release, run.spec):
+        return run.result(UNCHANGED, running_release=state.current, reason="already on this release and healthy",
+                          old_release=state.current, new_release=release.release_id)
+    return None
+
+
 def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
     state = run.read_state(full=False)
     new, old = release.release_id, state.current
     base = {"old_release": old, "new_release": new}
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before this robot started", **base)
-    if state.current == new:    # just deployed: judge `starting` services the way the gate did
-        state = replace(state, containers=settled(run.t, run.spec, state.containers))
-    if state.lock is None and up_to_date(state, release, run.spec):
-        return run.result(UNCHANGED, running_release=old, reason="already on this release and healthy", **base)
+    done = _unchanged(run, release, state)
+    if done is not None:
+        return done
     state = run.read_state(full=True)    # the preflight facts, only when something will change
     problems = preflight(state, run, run.spec.min_free_disk_mb)
     if run.ctx.host_changes:

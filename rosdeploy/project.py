@@ -27,6 +27,7 @@ from rosdeploy.vault import Vault
 # Scopes whose rules judge the inputs (fleet file + inventory) rather than a rendered release:
 # validate reports their warnings too, since the fix is in the user's own files.
 INPUT_SCOPES = ("fleet", "host")
+OnRelease = Callable[[RenderedRelease], None] | None
 
 
 @dataclass(frozen=True)
@@ -82,9 +83,11 @@ def gc_paused() -> Iterator[None]:
         gc.enable()
 
 
-def deployable(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
-    """Every robot's release and the input warnings, after every rule ran; InputError on any error."""
-    releases, problems = prepare(project, hosts)
+def deployable(project: Project, hosts: Sequence[Host], on_release: OnRelease = None,
+               ) -> tuple[dict[str, RenderedRelease], list[Problem]]:
+    """Every robot's release and the input warnings, after every rule ran; InputError on any error.
+    `on_release`: called with each release as soon as it is rendered, before any rule ran."""
+    releases, problems = prepare(project, hosts, on_release)
     problems = gate(problems)
     errors = [p for p in problems if p.severity == "error"]
     if errors:
@@ -92,7 +95,8 @@ def deployable(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, Rende
     return releases, problems
 
 
-def _render_all(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
+def _render_all(project: Project, hosts: Sequence[Host], on_release: OnRelease = None,
+                ) -> tuple[dict[str, RenderedRelease], list[Problem]]:
     """Render every robot whose inputs allow it; the problems are the render errors.
 
     A robot failing an input rule (a device or secret it lacks) is skipped: the rule
@@ -112,6 +116,8 @@ def _render_all(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, Rend
             continue
         try:
             releases[host.name] = renderer.render(host)
+            if on_release is not None:
+                on_release(releases[host.name])
         except RenderError as exc:
             for p in exc.problems:
                 same = (p.file, p.line, p.key, p.message.replace(host.name, ""))
@@ -126,11 +132,12 @@ def _same_on(p: Problem, robots: list[str]) -> Problem:
     return replace(p, message=f"{p.message} (the same on {len(robots) - 1} more robot(s))")
 
 
-def prepare(project: Project, hosts: Sequence[Host]) -> tuple[dict[str, RenderedRelease], list[Problem]]:
+def prepare(project: Project, hosts: Sequence[Host], on_release: OnRelease = None,
+            ) -> tuple[dict[str, RenderedRelease], list[Problem]]:
     """Render every robot once and run every rule on the result: releases and findings, errors first."""
     from rosdeploy import checks, ready
     with gc_paused():
-        releases, problems = _render_all(project, hosts)
+        releases, problems = _render_all(project, hosts, on_release)
         problems += ready.host_problems(project.spec, hosts)     # inventory `ready:` / `window:` overrides
         found = checks.run_checks(project.spec, hosts, releases, all_hosts=tuple(project.inventory.hosts.values()))
     return releases, sorted(problems + found, key=checks.sort_key)

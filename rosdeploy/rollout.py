@@ -14,10 +14,11 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from typing import Callable, Sequence, TypeVar
 
-from rosdeploy.deploy import RunContext, apply_host, rollback_host
+from rosdeploy.deploy import RunContext, apply_host, precheck_host, rollback_host
 from rosdeploy.model import Host, RenderedRelease, RolloutPolicy
 from rosdeploy.pending import PENDING_OUTCOMES, counts_as_failure, next_try
-from rosdeploy.results import DEPLOYED, SKIPPED, FleetResult, HostResult
+from rosdeploy.results import DEPLOYED, SKIPPED, UNCHANGED, FleetResult, HostResult
+from rosdeploy.transport import Handoff
 
 T = TypeVar("T")
 
@@ -107,31 +108,73 @@ def apply_fleet(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Rend
     started = time.monotonic()
     waves = plan_waves(hosts, policy)
     done: list[HostResult] = []
-    aborted = False
-    for number, wave in enumerate(waves, 1):
-        try:
-            if ctx.cancel.is_set():
-                break
-            notify("wave", {"number": number, "of": len(waves), "hosts": [h.name for h in wave]})
-            results = parallel(wave, lambda h: apply_host(ctx, h, releases[h.name]), policy.forks, ctx.cancel.set)
-            done.extend(_with_wave(r, number) for r in results)
-            failed = [r for r in results if counts_as_failure(r, policy.count_busy, until is not None)]
-            budget = allowed_failures(policy.max_fail, len(wave))
-            if len(failed) > budget:
-                aborted = True
-                notify("abort", {"wave": number, "failed": [r.host for r in failed], "max_fail": budget})
-                break
-            if policy.pause and number < len(waves) and not ctx.cancel.is_set():
-                notify("pause", {"seconds": policy.pause})
-                ctx.cancel.wait(policy.pause)
-        except KeyboardInterrupt:   # between waves (pause, --step prompt): stop, then report
-            ctx.cancel.set()
+    known: dict[str, HostResult] = {}
+    handoff = Handoff({}, ctx.connect)
+    if len(waves) > 1:
+        done, known, handoff, waves = _precheck(ctx, hosts, releases, policy, notify)
+    try:
+        aborted = _waves(replace(ctx, connect=handoff.connect), waves, releases, policy, notify, done, known, until)
+    finally:
+        handoff.close()
     if until is not None and not aborted:
         aborted = _converge(ctx, hosts, releases, policy, done, until, notify)
     done.extend(_skipped(waves, done, "rollout stopped before this robot's wave"))
     back = _fleet_rollback(ctx, hosts, done, policy, notify) if aborted and ctx.spec.rollback.fleet else ()
     return FleetResult("apply", tuple(done), aborted=aborted, fleet_rollback=back,
                        interrupted=ctx.cancel.is_set(), seconds=time.monotonic() - started, run_id=ctx.run_id)
+
+
+def _precheck(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, RenderedRelease], policy: RolloutPolicy,
+              notify: Notify) -> tuple[list[HostResult], dict[str, HostResult], Handoff, list[list[Host]]]:
+    """Before a rollout in waves: every robot asked at once whether it needs the release.
+
+    A no-op re-apply is then one round trip, not one per wave, and the waves are planned over
+    the robots that change: a canary that is already up to date would prove nothing. Returns the
+    robots already on the release; what the first wave reports without asking again (an
+    unreachable robot: connect_timeout once, not twice) and its open connections (a later wave
+    may start minutes later: it asks anew); and the waves."""
+    quiet = replace(ctx, progress=lambda host, step: None)
+    checked = parallel(hosts, lambda h: precheck_host(quiet, h, releases[h.name]), policy.forks, ctx.cancel.set)
+    done = [r for r, _ in checked if r is not None and r.outcome == UNCHANGED]
+    if done:
+        notify("unchanged", {"hosts": [r.host for r in done]})
+        for r in done:
+            ctx.progress(r.host, r.outcome)
+    waves = plan_waves([h for h in hosts if h.name not in {r.host for r in done}], policy)
+    first = {h.name for h in waves[0]} if waves else set()
+    known = {r.host: r for r, _ in checked if r is not None and r.outcome != UNCHANGED and r.host in first}
+    handoff = Handoff({h.name: t for h, (_, t) in zip(hosts, checked, strict=True) if t is not None}, ctx.connect)
+    handoff.keep_only(first)
+    return done, known, handoff, waves
+
+
+def _waves(ctx: RunContext, waves: list[list[Host]], releases: dict[str, RenderedRelease], policy: RolloutPolicy,
+           notify: Notify, done: list[HostResult], known: dict[str, HostResult], until: float | None) -> bool:
+    """Every wave in turn, each robot's result added to `done`; True when a wave's failures stop it."""
+    def work(host: Host) -> HostResult:
+        if host.name in known:
+            ctx.progress(host.name, known[host.name].outcome)
+            return known.pop(host.name)
+        return apply_host(ctx, host, releases[host.name])
+
+    for number, wave in enumerate(waves, 1):
+        try:
+            if ctx.cancel.is_set():
+                break
+            notify("wave", {"number": number, "of": len(waves), "hosts": [h.name for h in wave]})
+            results = parallel(wave, work, policy.forks, ctx.cancel.set)
+            done.extend(_with_wave(r, number) for r in results)
+            failed = [r for r in results if counts_as_failure(r, policy.count_busy, until is not None)]
+            budget = allowed_failures(policy.max_fail, len(wave))
+            if len(failed) > budget:
+                notify("abort", {"wave": number, "failed": [r.host for r in failed], "max_fail": budget})
+                return True
+            if policy.pause and number < len(waves) and not ctx.cancel.is_set():
+                notify("pause", {"seconds": policy.pause})
+                ctx.cancel.wait(policy.pause)
+        except KeyboardInterrupt:   # between waves (pause, --step prompt): stop, then report
+            ctx.cancel.set()
+    return False
 
 
 def _converge(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, RenderedRelease],

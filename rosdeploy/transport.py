@@ -452,6 +452,26 @@ class EarlyConnect:
         self.pending.clear()
 
 
+class Handoff:
+    """Connections one part of a run hands to the next: a rollout's pre-check (rollout._precheck)
+    leaves the robots that need the release connected. Whatever the next part does not take
+    is closed with close(); a robot it takes a second time connects anew (`fallback`)."""
+
+    def __init__(self, kept: dict[str, Transport], fallback: Callable[[Host, SSHOptions], Transport]) -> None:
+        self.kept, self.fallback = kept, fallback
+
+    def connect(self, host: Host, options: SSHOptions) -> Transport:
+        kept = self.kept.pop(host.name, None)
+        return kept if kept is not None else self.fallback(host, options)
+
+    def keep_only(self, names: set[str]) -> None:
+        for name in [n for n in self.kept if n not in names]:
+            self.kept.pop(name).close()
+
+    def close(self) -> None:
+        self.keep_only(set())
+
+
 def _close_unused(future: "Future[Transport]") -> None:
     if future.exception() is None:
         future.result().close()

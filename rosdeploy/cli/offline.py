@@ -10,11 +10,11 @@ import argparse
 import getpass
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from rosdeploy.cli.common import add_command, add_fleet_args, inventory_targets, path_arg
 from rosdeploy.cli.vault import vault_from_args
-from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
+from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem
 from rosdeploy.output import Output
 
 if TYPE_CHECKING:   # model.py costs 7 ms of dataclasses at import; --help needs none of it
@@ -94,16 +94,11 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.project import deployable
 
     project, hosts = _load(args, out)
-    releases, warnings = deployable(project, hosts)   # every rule validate and check run, or exit 2
+    root = Path(args.out)
+    releases, warnings = _render_to(root, lambda sink: deployable(project, hosts, sink))   # or exit 2
     for warning in warnings:
         out.warn(f"{warning.severity}: {warning}")
-    root = Path(args.out)
-    try:
-        written = write_releases(root, releases)
-    except OSError as exc:   # --out is a file, read-only, too long a name...
-        reason = exc.strerror or str(exc)
-        raise InputError([Problem(str(exc.filename or root), None, "--out",
-                                  f"cannot write there ({reason}): give a folder you can write to")]) from None
+    written = [root / name for name in releases]
     if out.as_json:
         robots = [_release_json(r, d) for r, d in zip(releases.values(), written, strict=True)]
         out.document({"out": str(root), "robots": robots})
@@ -114,40 +109,31 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
     return EXIT_OK
 
 
-def write_releases(root: Path, releases: dict[str, RenderedRelease]) -> list[Path]:
-    """Every robot's folder under root, in the order given. Four threads: creating a file is
-    kernel time, which the threads spend on both cores (the GIL is released meanwhile). 5,000
-    robots are 30,000 files and 15,000 folders: 7-9 s one by one, 4-6 s with four threads on
-    the project's 2-core machine (a bare loop writing the same files; issue 18)."""
-    from concurrent.futures import ThreadPoolExecutor
+def _render_to(root: Path, render: Callable[[Any], tuple[dict[str, RenderedRelease], list[Problem]]],
+               ) -> tuple[dict[str, RenderedRelease], list[Problem]]:
+    """Render (every rule run) and write each robot's folder under root: while rendering, in a child
+    process (writeout.Writer), or afterwards where it cannot start. Nothing lands when a rule refuses."""
+    from rosdeploy.cli import writeout
 
-    with ThreadPoolExecutor(max_workers=4) as pool:
-        return list(pool.map(lambda item: write_release(root / item[0], item[1]), releases.items()))
-
-
-def write_release(folder: Path, release: RenderedRelease) -> Path:
-    """Every file of the release under `folder`, with its mode (.env stays 0600 whatever the umask).
-
-    Plain os calls and each folder made once: 5,000 robots are 30,000 files (issue 18)."""
-    made: set[str] = set()
-    for f in release.files:
-        if f.name.startswith("/") or ".." in f.name.split("/"):
-            raise InputError([Problem(f.name, None, "", "a rendered file name leaves the release folder; "
-                                                        "rename the template")])
-        target = os.path.join(folder, f.name)
-        parent = os.path.dirname(target)
-        if parent not in made:
-            os.makedirs(parent, exist_ok=True)
-            made.add(parent)
-        fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, f.mode)
+    try:
+        writer = writeout.Writer(root) if hasattr(os, "fork") else None
+    except OSError:      # --out is a file, read-only...: said after the fleet's own errors, as without a writer
+        writer = None
+    try:
+        if writer is None:
+            releases, warnings = render(None)
+            for name, release in releases.items():
+                writeout.write_release(str(root / name), writeout.files_of(release))
+            return releases, warnings
+        done = False
         try:
-            os.fchmod(fd, f.mode)   # O_CREAT's mode is cut by the umask; an old file kept its own
-            data = memoryview(f.content.encode("utf-8"))
-            while data:
-                data = data[os.write(fd, data):]
+            releases, warnings = render(writer.send)
+            done = True
         finally:
-            os.close(fd)
-    return folder
+            writer.finish(commit=done)
+        return releases, warnings
+    except OSError as exc:
+        raise writeout.cannot_write(exc, root) from None
 
 
 def _release_json(release: RenderedRelease, folder: Path) -> dict[str, Any]:

@@ -160,18 +160,21 @@ def ssh_options(spec: FleetSpec) -> "SSHOptions":
 
 
 class EarlyConnections:
-    """apply --yes: the first wave's connections open while the release renders (transport.EarlyConnect)."""
+    """apply --yes: the connections the rollout opens first, opened while the release renders
+    (transport.EarlyConnect): every robot's, for the pre-check of a rollout in waves (up to
+    `forks` at once, the robots it asks first), else the one wave's."""
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args
         self.early: "EarlyConnect | None" = None
 
     def start(self, project: Any, hosts: tuple[Host, ...]) -> None:
-        from rosdeploy.rollout import plan_waves
+        from rosdeploy.rollout import ordered
         from rosdeploy.transport import EarlyConnect
 
         if self.args.yes and hosts:
-            first = plan_waves(hosts, _policy(project.spec.rollout, self.args))[0]
+            policy = _policy(project.spec.rollout, self.args)
+            first = ordered(hosts, policy.order_by)[:policy.forks]
             self.early = EarlyConnect(first, ssh_options(project.spec))
 
     def use(self, ctx: "RunContext") -> "RunContext":

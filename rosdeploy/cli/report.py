@@ -167,6 +167,8 @@ def rollout_notifier(out: Output, args: argparse.Namespace,
                 with view.paused():
                     if not confirm(out, "Start this wave?"):
                         raise KeyboardInterrupt
+        elif event == "unchanged":
+            out.line(out.paint(f"== already on this release: {', '.join(data['hosts'])}", "bold"))
         elif event == "abort":
             out.error(f"rollout stopped in wave {data['wave']}: {len(data['failed'])} robot(s) failed "
                       f"({', '.join(data['failed'])}), more than max_fail={data['max_fail']}")

@@ -91,6 +91,55 @@ def test_render_version_override_and_json(capsys: pytest.CaptureFixture, tmp_pat
     assert "registry.local:5000/acme/amr-driver:2.0.0" in (tmp_path / "amr-s1" / "compose.yml").read_text()
 
 
+def render_north(capsys: pytest.CaptureFixture, out: Path) -> tuple[int, str, str]:
+    return run(capsys, "render", WAREHOUSE, "--out", str(out), "--limit", "site_north",
+               "--vault-password-file", WAREHOUSE_PASSWORD)
+
+
+def test_render_over_an_earlier_render_replaces_its_files_and_keeps_the_rest(capsys: pytest.CaptureFixture,
+                                                                               tmp_path: Path) -> None:
+    (tmp_path / "amr-n1").mkdir()
+    (tmp_path / "amr-n1" / ".env").write_text("OLD=1\n")
+    (tmp_path / "amr-n1" / ".env").chmod(0o644)
+    (tmp_path / "amr-n1" / "notes.txt").write_text("mine\n")
+    (tmp_path / "other").mkdir()
+    code, _, err = render_north(capsys, tmp_path)
+    assert code == 0, err
+    env = tmp_path / "amr-n1" / ".env"
+    assert WAREHOUSE_SECRET in env.read_text() and "OLD=1" not in env.read_text()
+    assert stat.S_IMODE(env.stat().st_mode) == 0o600          # an old file's mode does not survive
+    assert (tmp_path / "amr-n1" / "notes.txt").read_text() == "mine\n"
+    assert (tmp_path / "amr-n2" / "compose.yml").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["amr-n1", "amr-n2", "other"]   # no staging left
+
+
+def test_render_that_cannot_put_a_robot_in_place_says_where_and_leaves_no_staging(capsys: pytest.CaptureFixture,
+                                                                                 tmp_path: Path) -> None:
+    (tmp_path / "amr-n2").write_text("a file where the robot's folder goes\n")
+    code, out, err = render_north(capsys, tmp_path)
+    assert code == 2 and out == ""
+    assert f"{tmp_path / 'amr-n2'}" in err and "cannot write there" in err and "--out" in err
+    assert (tmp_path / "amr-n2").read_text() == "a file where the robot's folder goes\n"
+    assert not any(p.name.startswith(".rosdeploy-render-") for p in tmp_path.iterdir())
+
+
+def test_a_refused_fleet_leaves_an_existing_out_folder_as_it_was(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    out = lab / "out"
+    (out / "r1").mkdir(parents=True)
+    (out / "r1" / "compose.yml").write_text("earlier\n")
+    edit(lab / "fleet.yml", lambda d: d["services"][next(iter(d["services"]))].update(privileged=True))
+    code, _, err = lab_run(capsys, lab, "render", "--out", str(out))
+    assert code == 2 and "privileged" in err
+    assert [p.name for p in out.iterdir()] == ["r1"] and (out / "r1" / "compose.yml").read_text() == "earlier\n"
+
+
+def test_render_where_out_cannot_be_made_names_the_path(capsys: pytest.CaptureFixture, tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code, _, err = render_north(capsys, blocker / "out")
+    assert code == 2 and f"{blocker}" in err and "cannot write there" in err
+
+
 def test_secrets_never_reach_the_output(capsys: pytest.CaptureFixture, lab: Path) -> None:
     for command in ("validate", "check"):
         code, out, err = lab_run(capsys, lab, command, "--json")

@@ -133,6 +133,7 @@ def test_interrupt_between_waves_skips_the_rest_and_reports(monkeypatch) -> None
                      services=(Service("s", "img", "1"),))
     ctx = RunContext(spec=spec, ssh=None, run_id="run", operator="me", cancel=threading.Event())
     monkeypatch.setattr(rollout, "apply_host", lambda ctx, h, rel: HostResult(h.name, DEPLOYED, "a", "b"))
+    monkeypatch.setattr(rollout, "precheck_host", lambda ctx, h, rel: (None, None))   # every robot changes
 
     def notify(event: str, data: dict) -> None:
         if event == "wave" and data["number"] == 2:
@@ -144,6 +145,78 @@ def test_interrupt_between_waves_skips_the_rest_and_reports(monkeypatch) -> None
     assert result.interrupted and not result.ok
     assert [(h.host, h.outcome) for h in result.hosts] == [
         ("r0", "deployed"), ("r1", "skipped"), ("r2", "skipped"), ("r3", "skipped")]
+
+
+class FakeLink:
+    def __init__(self, name: str) -> None:
+        self.name, self.closed = name, False
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_waves_are_planned_over_the_robots_the_precheck_found_not_up_to_date(monkeypatch) -> None:
+    """A rollout in waves asks every robot first: the up-to-date ones are settled without a wave,
+    the canary is a robot that changes, the first wave goes on over the pre-check's connections
+    and takes its unreachable verdict as it was; a later wave's connections are closed."""
+    import threading
+
+    from rosdeploy import rollout
+    from rosdeploy.deploy import RunContext
+    from rosdeploy.model import FleetSpec, RenderedRelease, Service
+    from rosdeploy.results import DEPLOYED, UNCHANGED, UNREACHABLE, HostResult
+
+    spec = FleetSpec(path="f", project="p", inventory="i", registry="r", version="1",
+                     services=(Service("s", "img", "1"),))
+    links = {name: FakeLink(name) for name in ("r1", "r3", "r4")}
+    verdicts = {"r0": HostResult("r0", UNCHANGED), "r2": HostResult("r2", UNCHANGED),
+                "r5": HostResult("r5", UNREACHABLE, reason="connect timed out")}
+    monkeypatch.setattr(rollout, "precheck_host", lambda ctx, h, rel: (verdicts.get(h.name), links.get(h.name)))
+    used: list[tuple[str, str]] = []
+
+    def apply_host(ctx: RunContext, h, rel) -> HostResult:
+        used.append((h.name, ctx.connect(h, ctx.ssh).name))
+        return HostResult(h.name, DEPLOYED, "a", "b")
+
+    monkeypatch.setattr(rollout, "apply_host", apply_host)
+    events: list[tuple[str, dict]] = []
+    ctx = RunContext(spec=spec, ssh=None, run_id="run", operator="me", cancel=threading.Event(),
+                     connect=lambda h, options: FakeLink("new-" + h.name))
+    hosts = [host(f"r{i}") for i in range(6)]
+    releases = {h.name: RenderedRelease(h.name, "p", "1", (), ()) for h in hosts}
+    result = rollout.apply_fleet(ctx, hosts, releases, RolloutPolicy(waves=(1, "100%"), max_fail=1),
+                                 lambda e, d: events.append((e, d)))
+    assert [(e, d["hosts"]) for e, d in events if e in ("unchanged", "wave")] == [
+        ("unchanged", ["r0", "r2"]), ("wave", ["r1"]), ("wave", ["r3", "r4", "r5"])]
+    assert used[0] == ("r1", "r1")                         # the canary went on over its pre-check link
+    assert sorted(used[1:]) == [("r3", "new-r3"), ("r4", "new-r4"), ("r5", "new-r5")]
+    assert links["r3"].closed and links["r4"].closed       # a later wave connects anew
+    outcomes = {h.host: (h.outcome, h.wave) for h in result.hosts}
+    assert outcomes == {"r0": (UNCHANGED, None), "r2": (UNCHANGED, None), "r1": (DEPLOYED, 1),
+                        "r3": (DEPLOYED, 2), "r4": (DEPLOYED, 2), "r5": (DEPLOYED, 2)}
+
+
+def test_an_unreachable_canary_is_reported_from_the_precheck_without_a_second_connect(monkeypatch) -> None:
+    import threading
+
+    from rosdeploy import rollout
+    from rosdeploy.deploy import RunContext
+    from rosdeploy.model import FleetSpec, RenderedRelease, Service
+    from rosdeploy.results import SKIPPED, UNREACHABLE, HostResult
+
+    spec = FleetSpec(path="f", project="p", inventory="i", registry="r", version="1",
+                     services=(Service("s", "img", "1"),))
+    down = HostResult("r0", UNREACHABLE, reason="connect timed out")
+    monkeypatch.setattr(rollout, "precheck_host", lambda ctx, h, rel: (down, None) if h.name == "r0" else (None, None))
+    monkeypatch.setattr(rollout, "apply_host", lambda *a: pytest.fail("no robot is deployed after the canary failed"))
+    ctx = RunContext(spec=spec, ssh=None, run_id="run", operator="me", cancel=threading.Event(),
+                     connect=lambda h, options: pytest.fail("nothing connects twice"))
+    hosts = [host(f"r{i}") for i in range(3)]
+    releases = {h.name: RenderedRelease(h.name, "p", "1", (), ()) for h in hosts}
+    result = rollout.apply_fleet(ctx, hosts, releases, RolloutPolicy(waves=(1, "100%")))
+    assert result.aborted
+    assert [(h.host, h.outcome, h.wave) for h in result.hosts] == [
+        ("r0", UNREACHABLE, 1), ("r1", SKIPPED, 2), ("r2", SKIPPED, 2)]
 
 
 @pytest.mark.parametrize("text,services", [
