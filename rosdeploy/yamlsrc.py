@@ -10,7 +10,7 @@ import os
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, cast
 
 import yaml
 
@@ -49,8 +49,13 @@ class Unsafe(str):
     """An `!unsafe` scalar: Ansible never templates it, and neither does the inventory."""
 
 
-_Constructor.add_constructor("!vault", lambda c, node: Encrypted(c.construct_scalar(node)))
-_Constructor.add_constructor("!unsafe", lambda c, node: Unsafe(c.construct_scalar(node)))
+def _scalar(kind: type[str]) -> Any:
+    """A constructor for a tagged scalar (construct_scalar refuses any other node, at its line)."""
+    return lambda c, node: kind(c.construct_scalar(cast(yaml.ScalarNode, node)))
+
+
+_Constructor.add_constructor("!vault", _scalar(Encrypted))
+_Constructor.add_constructor("!unsafe", _scalar(Unsafe))
 
 
 @dataclass(frozen=True)
@@ -182,7 +187,7 @@ def _check_depth(text: str) -> None:
             depth += 1
             if depth > MAX_DEPTH:
                 raise yaml.MarkedYAMLError(problem=f"nested more than {MAX_DEPTH} levels deep",
-                                           problem_mark=event.start_mark)
+                                           problem_mark=cast(yaml.Mark, event.start_mark))
         elif isinstance(event, yaml.CollectionEndEvent):
             depth -= 1
 

@@ -69,7 +69,8 @@ def _folded(warnings: list[Problem]) -> tuple[Problem, ...]:
 
 
 def _all_layers(draft: Draft) -> Iterator[Layer]:
-    for entity in chain(draft.groups.values(), draft.hosts.values()):
+    entities: list[GroupDraft | HostDraft] = [*draft.groups.values(), *draft.hosts.values()]
+    for entity in entities:
         yield from entity.inline
         yield from entity.files
 

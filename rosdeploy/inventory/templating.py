@@ -111,7 +111,8 @@ class HostVars(Mapping[str, Any]):
         except TemplateFailed as failed:
             origin = self._origins.get(failed.key) or self._origins[key]
             problem = origin.problem((failed.key,), f"robot {self._name!r}: {failed.message}")
-            return Unresolved(hint=problem, name=key, exc=UnresolvedVar)
+            # Jinja raises exc(hint) where the value is used: UnresolvedVar takes the Problem itself
+            return Unresolved(hint=problem, name=key, exc=UnresolvedVar)  # type: ignore[arg-type]
 
     def value(self, key: str) -> Any:
         """The templated value; TemplateFailed (naming the var) if it cannot be templated."""
