@@ -48,6 +48,9 @@ def measure(fleet: Path, command: str, out: Path, code: Path = REPO) -> Run:
             "--vault-password-file", str(fleet.parent / "vault-password")]
     if command == "render":
         argv += ["--out", str(Path(tempfile.mkdtemp(dir=out)) / "out")]
+    # Each run starts from a quiet disk: without this, the writeback of the runs before (30,000
+    # files a render of 5,000 robots) slows the next one's file creation several times over.
+    os.sync()
     t0 = time.perf_counter()
     # A fresh interpreter per run: RUSAGE_CHILDREN's ru_maxrss is the largest child so far,
     # so each measurement runs in a grandchild whose own peak the child reports.

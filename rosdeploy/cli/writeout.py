@@ -21,6 +21,7 @@ from rosdeploy.errors import InputError, Problem
 from rosdeploy.model import RenderedRelease
 
 STAGE_PREFIX = ".rosdeploy-render-"
+PIPE_BYTES = 1 << 20     # /proc/sys/fs/pipe-max-size's default
 Files = list[tuple[str, int, bytes]]     # (name inside the robot's folder, mode, content)
 
 
@@ -73,6 +74,7 @@ class Writer:
             _child(data_r, status_w, self.stage, self.root, self.created)
         os.close(data_r)
         os.close(status_w)
+        _widen(data_w)
         self.pipe: IO[bytes] = os.fdopen(data_w, "wb")
         self.status = status_r
 
@@ -93,6 +95,16 @@ class Writer:
         if failed:
             filename, _, reason = failed.partition("\0")
             raise OSError(0, reason, filename or None)
+
+
+def _widen(fd: int) -> None:
+    """A 1 MB pipe (Linux) instead of 64 KB: the renderer runs ~100 robots ahead of a disk that
+    stalls for a moment (a journal commit) instead of ~6, and waits only at the end if at all."""
+    try:
+        import fcntl
+        fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+    except (ImportError, AttributeError, OSError):
+        pass
 
 
 def _child(data_fd: int, status_fd: int, stage: str, root: Path, created: bool) -> None:
