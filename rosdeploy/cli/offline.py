@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import getpass
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
@@ -116,7 +115,7 @@ def _render_to(root: Path, render: Callable[[Any], tuple[dict[str, RenderedRelea
     from rosdeploy.cli import writeout
 
     try:
-        writer = writeout.Writer(root) if hasattr(os, "fork") else None
+        writer = writeout.Writer(root) if writeout.can_fork() else None
     except OSError:      # --out is a file, read-only...: said after the fleet's own errors, as without a writer
         writer = None
     try:

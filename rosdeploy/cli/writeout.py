@@ -25,6 +25,13 @@ PIPE_BYTES = 1 << 20     # /proc/sys/fs/pipe-max-size's default
 Files = list[tuple[str, int, bytes]]     # (name inside the robot's folder, mode, content)
 
 
+def can_fork() -> bool:
+    """fork() exists and this process runs one thread (a child of a threaded process could
+    inherit a lock some other thread held)."""
+    import threading
+    return hasattr(os, "fork") and threading.active_count() == 1
+
+
 def files_of(release: RenderedRelease) -> Files:
     for f in release.files:
         if f.name.startswith("/") or ".." in f.name.split("/"):
@@ -68,10 +75,13 @@ class Writer:
         data_r, data_w = os.pipe()
         status_r, status_w = os.pipe()
         self.pid = os.fork()
-        if self.pid == 0:                       # the child: never returns
-            os.close(data_w)
-            os.close(status_r)
-            _child(data_r, status_w, self.stage, self.root, self.created)
+        if self.pid == 0:                       # the child: never returns into the caller's code
+            try:
+                os.close(data_w)
+                os.close(status_r)
+                _child(data_r, status_w, self.stage, self.root, self.created)
+            finally:
+                os._exit(1)
         os.close(data_r)
         os.close(status_w)
         _widen(data_w)
@@ -82,7 +92,8 @@ class Writer:
         pickle.dump((release.host, files_of(release)), self.pipe, protocol=pickle.HIGHEST_PROTOCOL)
 
     def finish(self, commit: bool) -> None:
-        """Commit (move into place) or drop what was written; an OSError of the child is raised here."""
+        """Commit (move into place) or drop what was written. The child's OSError is raised here on a
+        commit; when dropping, the caller is failing already (a refusal, Ctrl-C) and says why."""
         try:
             if commit:
                 pickle.dump(None, self.pipe)
@@ -92,7 +103,7 @@ class Writer:
         os.waitpid(self.pid, 0)
         with os.fdopen(self.status, "rb") as status:
             failed = status.read().decode("utf-8", "replace")
-        if failed:
+        if failed and commit:
             filename, _, reason = failed.partition("\0")
             raise OSError(0, reason, filename or None)
 

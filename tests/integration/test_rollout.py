@@ -68,3 +68,27 @@ def test_max_fail_one_tolerates_one_failure_and_not_two(fleet, fleet_file: Path)
     assert {h["host"]: h["outcome"] for h in two.doc["fleet_rollback"]} == {"robot3": "switched"}
     shell = RobotShell(fleet, "robot3")
     assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"} and all_healthy(shell)
+
+
+def test_a_rollout_in_waves_settles_robots_already_on_the_release_and_canaries_one_that_changes(
+        fleet, fleet_file: Path) -> None:
+    """Waves are planned over the robots that change: after robot1 took 1.1.0 alone, the canary
+    of the fleet-wide 1.1.0 is robot2 (robot1 would prove nothing), and a re-apply is one
+    round trip per robot, with no wave at all."""
+    assert apply(fleet_file, "--waves", "100%").code == EXIT_OK
+    assert apply(fleet_file, "--version", "1.1.0", "--limit", "robot1").code == EXIT_OK
+
+    run = apply(fleet_file, "--version", "1.1.0", "--waves", "1,100%")
+    assert run.code == EXIT_OK, run.stderr
+    outcomes = {h["host"]: (h["wave"], h["outcome"]) for h in run.doc["hosts"]}
+    assert outcomes == {"robot1": (None, "unchanged"), "robot2": (1, "deployed"), "robot3": (2, "deployed")}
+    assert "already on this release: robot1" in run.stderr
+    for name, shell in shells(fleet).items():
+        assert versions(shell) == {"driver": "1.1.0", "perception": "1.1.0"} and all_healthy(shell), name
+
+    again = apply(fleet_file, "--version", "1.1.0", "--waves", "1,100%")
+    assert again.code == EXIT_OK, again.stderr
+    assert {(h["wave"], h["outcome"]) for h in again.doc["hosts"]} == {(None, "unchanged")}
+    for host in again.doc["hosts"]:          # connect and one state read: nothing else ran
+        assert [s["name"] for s in host["steps"]] == ["connect", "state"], host
+    assert "== wave" not in again.stderr
