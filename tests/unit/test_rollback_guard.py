@@ -165,6 +165,24 @@ def test_a_guard_that_is_acting_keeps_a_rollback_out(tmp_path: Path) -> None:
     assert not (tmp_path / "r/demo/.lock").exists()
 
 
+def test_a_guard_that_is_acting_keeps_a_deploy_out_with_one_answer(tmp_path: Path) -> None:
+    """The deploy's lock gives the lock back when its guard cannot be armed: its answer is only
+    `held ...` (it used to print `locked` first, and the holder read as that text)."""
+    env = robot(tmp_path, running="1.1.0-b")
+    g = tmp_path / "r/demo/.guard"
+    g.mkdir()
+    (g / "acting").write_text("run=R0\n")
+    (g / ".claim").mkdir()
+    arm = commands.arm_args("run=run-1\n", 30, ("",) * 6, ())
+    out = sh(commands.lock("~/r", "demo", {"run": "run-1"}, guard=arm), env)
+    assert out.returncode == 3 and out.stdout.startswith("held {") and "locked" not in out.stdout, out.stdout
+    assert not (tmp_path / "r/demo/.lock").exists()
+    (g / ".claim").rmdir()
+    (g / "acting").unlink()
+    taken = sh(commands.lock("~/r", "demo", {"run": "run-1"}, guard=arm), env)
+    assert taken.returncode == 0 and taken.stdout == "locked\n", taken.stderr
+
+
 def test_the_controller_s_activation_disarms_the_rollback_s_guard_and_a_lost_run_leaves_it_armed() -> None:
     from rosdeploy.transport import Result
 
