@@ -38,7 +38,7 @@ from rosdeploy import __version__
 from rosdeploy.commands import Command
 from rosdeploy.errors import ChannelRefused, ConnectError, HostKeyError, RemoteError
 from rosdeploy.model import Host
-from rosdeploy.transport import Result, SSHOptions, SSHTransport, connect, known_hosts_for
+from rosdeploy.transport import Result, SSHOptions, SSHTransport, connect, known_hosts_for, succeeded
 
 PROTOCOL = 1
 SPAWN_WAIT = 5.0          # seconds a caller waits for a keeper it started to listen
@@ -212,6 +212,9 @@ class KeptTransport:
                                                f"or set `ssh.persist: 0` to connect directly") from exc
         r = reply["result"]
         return Result(command.display(), r["stdout"], r["stderr"], int(r["exited"]), float(r["duration"]))
+
+    def check(self, command: Command, what: str = "") -> Result:
+        return succeeded(self.host, self.run(command), what or command.display())
 
     def close(self) -> None:
         self._sock.close()

@@ -213,13 +213,17 @@ class SSHTransport:
         return Result(command.display(), out, err, code, time.monotonic() - started)
 
     def check(self, command: Command, what: str = "") -> Result:
-        result = self.run(command)
-        if not result.ok:
-            raise CommandFailed(self.host.name, result, what or command.display())
-        return result
+        return succeeded(self.host, self.run(command), what or command.display())
 
     def close(self) -> None:
         self._conn.close()
+
+
+def succeeded(host: Host, result: Result, what: str) -> Result:
+    """Transport.check's verdict on a result: itself, or CommandFailed on a non-zero exit."""
+    if not result.ok:
+        raise CommandFailed(host.name, result, what)
+    return result
 
 
 def _no_delay(transport: paramiko.Transport | None) -> None:

@@ -190,6 +190,20 @@ def test_runs_go_through_one_held_connection_per_robot(served) -> None:
     assert [c["robot"] for c in k.listing()] == ["robot1"]
 
 
+def test_check_through_the_keeper_raises_on_a_failed_command_like_a_direct_connection(served) -> None:
+    from rosdeploy.errors import CommandFailed
+
+    _, path = served
+    client = _client(path)
+    try:
+        with pytest.raises(CommandFailed) as failed:
+            client.check(Command(("echo", "hi")), "the echo step")     # FakeSSH's commands exit 3
+        assert str(failed.value).startswith("robot1: the echo step failed (exit 3)")
+        assert failed.value.result.stdout == "robot1:echo hi:"
+    finally:
+        client.close()
+
+
 def test_concurrent_callers_for_one_robot_open_one_connection(served) -> None:
     _, path = served
     clients = []
