@@ -7,10 +7,13 @@ rosdeploy does the same.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
+import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +23,8 @@ from rosdeploy.inventory.ranges import valid_name
 from rosdeploy.yamlsrc import Doc
 
 TIMEOUT = 60.0   # seconds per run: a cloud API behind the script may be slow, a hung one must not hang us
+MAX_OUTPUT = 256 << 20   # bytes: 5,000 robots with rich hostvars print a few MB; a runaway script, without end
+POLL = 0.05      # seconds between looks at a running script's time and output size
 
 
 def is_script(path: Path) -> bool:
@@ -83,29 +88,54 @@ def _run(path: Path, args: list[str], draft: Draft) -> dict[str, Any] | None:
         draft.problems.append(Problem(str(path), None, "", f"dynamic inventory script: {message}"))
         return None
 
-    try:
-        # Its own session, so a timeout stops whatever it started too, not only the script.
-        proc = subprocess.Popen([str(path.absolute()), *args], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, start_new_session=True)
-    except OSError as exc:
-        return refuse(f"cannot run it ({exc.strerror}): check its #! line, or remove its execute bit if it is "
-                      "not a script")
-    with proc:
+    command = f"`{path.name} {' '.join(args)}`"
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         try:
-            stdout, stderr = proc.communicate(timeout=TIMEOUT)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.communicate()
-            return refuse(f"`{path.name} {' '.join(args)}` did not finish within {TIMEOUT:g} s: fix the script "
-                          "or export its output to a YAML file")
+            # Its own session, so a timeout stops whatever it started too, not only the script.
+            proc = subprocess.Popen([str(path.absolute()), *args], stdin=subprocess.DEVNULL, stdout=out,
+                                    stderr=err, start_new_session=True)
+        except OSError as exc:
+            return refuse(f"cannot run it ({exc.strerror}): check its #! line, or remove its execute bit if it "
+                          "is not a script")
+        stopped = _wait(proc, out.fileno(), err.fileno())
+        if stopped == "time":
+            return refuse(f"{command} did not finish within {TIMEOUT:g} s: fix the script or export its output "
+                          "to a YAML file")
+        if stopped == "size":
+            return refuse(f"{command} printed more than {MAX_OUTPUT >> 20} MB: a dynamic inventory prints a "
+                          "JSON object of groups; fix the script or export its output to a YAML file")
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read(), err.read()
     if proc.returncode != 0:
         tail = stderr.decode("utf-8", "replace").strip()[-300:]
-        return refuse(f"`{path.name} {' '.join(args)}` exited {proc.returncode}: {tail}")
+        return refuse(f"{command} exited {proc.returncode}: {tail}")
     try:
         data = json.loads(stdout.decode("utf-8"))
     except (UnicodeDecodeError, ValueError) as exc:
-        return refuse(f"`{path.name} {' '.join(args)}` did not print JSON ({exc}): a dynamic inventory prints "
-                      "a JSON object of groups")
+        return refuse(f"{command} did not print JSON ({exc}): a dynamic inventory prints a JSON object of groups")
     if not isinstance(data, dict):
         return refuse("its output must be a JSON object of groups")
     return data
+
+
+def _wait(proc: subprocess.Popen, *outputs: int) -> str:
+    """Wait for the script: "" when it exited, "time" or "size" when it was stopped (with
+    everything it started) for running past TIMEOUT or printing more than MAX_OUTPUT. The
+    output goes to files, not pipes, so its size is known without reading it."""
+    deadline = time.monotonic() + TIMEOUT
+    while True:
+        try:
+            proc.wait(timeout=POLL)
+            stopped = ""
+        except subprocess.TimeoutExpired:
+            stopped = "time" if time.monotonic() > deadline else ""
+        if sum(os.fstat(fd).st_size for fd in outputs) > MAX_OUTPUT:
+            stopped = "size"
+        if stopped or proc.returncode is not None:
+            break
+    if stopped:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    return stopped

@@ -226,6 +226,26 @@ def test_a_hung_dynamic_inventory_is_stopped(tmp_path: Path, monkeypatch: pytest
         load_inventory(str(script))
 
 
+def test_a_dynamic_inventory_that_prints_without_end_is_stopped(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """Bounded memory: the output goes to a file whose size is watched, and the script (with what it
+    started) is stopped past MAX_OUTPUT, long before TIMEOUT."""
+    import time
+
+    from rosdeploy.inventory import script as script_module
+    monkeypatch.setattr(script_module, "MAX_OUTPUT", 1 << 20)
+    script = tmp_path / "endless.sh"
+    marker = tmp_path / "still-running"
+    script.write_text(f"#!/bin/sh\n(sleep 2; touch {marker}) &\nyes '{{\"all\": []}}'\n")
+    script.chmod(0o755)
+    began = time.monotonic()
+    with pytest.raises(InventoryError, match=r"endless.sh --list` printed more than 1 MB"):
+        load_inventory(str(script))
+    assert time.monotonic() - began < 10
+    time.sleep(2.5)
+    assert not marker.exists(), "what the script started was stopped with it"
+
+
 def test_fleet_commands_take_vault_ids_and_print_inventory_warnings(tmp_path: Path,
                                                                    capsys: pytest.CaptureFixture) -> None:
     lab = tmp_path / "lab"
