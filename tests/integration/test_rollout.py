@@ -89,6 +89,6 @@ def test_a_rollout_in_waves_settles_robots_already_on_the_release_and_canaries_o
     again = apply(fleet_file, "--version", "1.1.0", "--waves", "1,100%")
     assert again.code == EXIT_OK, again.stderr
     assert {(h["wave"], h["outcome"]) for h in again.doc["hosts"]} == {(None, "unchanged")}
-    for host in again.doc["hosts"]:          # connect and one state read: nothing else ran
-        assert [s["name"] for s in host["steps"]] == ["connect", "state"], host
+    for host in again.doc["hosts"]:          # connect and the quick state read (`check`): nothing else ran
+        assert [s["name"] for s in host["steps"]] == ["connect", "check"], host
     assert "== wave" not in again.stderr
