@@ -18,7 +18,7 @@ from rosdeploy.deploy import RunContext, apply_host, precheck_host, rollback_hos
 from rosdeploy.model import Host, RenderedRelease, RolloutPolicy
 from rosdeploy.pending import PENDING_OUTCOMES, counts_as_failure, next_try
 from rosdeploy.results import DEPLOYED, SKIPPED, UNCHANGED, FleetResult, HostResult
-from rosdeploy.transport import Handoff
+from rosdeploy.transport import Handoff, Transport
 
 T = TypeVar("T")
 
@@ -134,7 +134,18 @@ def _precheck(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Render
     unreachable robot: connect_timeout once, not twice) and its open connections (a later wave
     may start minutes later: it asks anew); and the waves."""
     quiet = replace(ctx, progress=lambda host, step: None)
-    checked = parallel(hosts, lambda h: precheck_host(quiet, h, releases[h.name]), policy.forks, ctx.cancel.set)
+    # Only the robots a wave would start first keep their connection meanwhile: 5,000 robots
+    # must not hold 5,000 connections (and paramiko's 5,000 threads) until the last one answers.
+    first_started = {h.name for h in ordered(hosts, policy.order_by)[:policy.forks]}
+
+    def ask(host: Host) -> tuple[HostResult | None, Transport | None]:
+        result, link = precheck_host(quiet, host, releases[host.name])
+        if link is not None and host.name not in first_started:
+            link.close()
+            link = None
+        return result, link
+
+    checked = parallel(hosts, ask, policy.forks, ctx.cancel.set)
     done = [r for r, _ in checked if r is not None and r.outcome == UNCHANGED]
     if done:
         notify("unchanged", {"hosts": [r.host for r in done]})

@@ -196,6 +196,36 @@ def test_waves_are_planned_over_the_robots_the_precheck_found_not_up_to_date(mon
                         "r3": (DEPLOYED, 2), "r4": (DEPLOYED, 2), "r5": (DEPLOYED, 2)}
 
 
+def test_the_precheck_keeps_only_the_connections_a_wave_would_start_with(monkeypatch) -> None:
+    import threading
+
+    from rosdeploy import rollout
+    from rosdeploy.deploy import RunContext
+    from rosdeploy.model import FleetSpec, RenderedRelease, Service
+    from rosdeploy.results import DEPLOYED, HostResult
+
+    spec = FleetSpec(path="f", project="p", inventory="i", registry="r", version="1",
+                     services=(Service("s", "img", "1"),))
+    links = {f"r{i}": FakeLink(f"r{i}") for i in range(4)}
+    monkeypatch.setattr(rollout, "precheck_host", lambda ctx, h, rel: (None, links[h.name]))
+    open_after_precheck: list[str] = []
+
+    def apply_host(ctx: RunContext, h, rel) -> HostResult:
+        if not open_after_precheck:
+            open_after_precheck.extend(sorted(name for name, link in links.items() if not link.closed))
+        ctx.connect(h, ctx.ssh)
+        return HostResult(h.name, DEPLOYED)
+
+    monkeypatch.setattr(rollout, "apply_host", apply_host)
+    ctx = RunContext(spec=spec, ssh=None, run_id="run", operator="me", cancel=threading.Event(),
+                     connect=lambda h, options: FakeLink("new-" + h.name))
+    hosts = [host(f"r{i}") for i in range(4)]
+    releases = {h.name: RenderedRelease(h.name, "p", "1", (), ()) for h in hosts}
+    rollout.apply_fleet(ctx, hosts, releases, RolloutPolicy(waves=(2, "100%"), forks=2))
+    assert open_after_precheck == ["r0", "r1"]              # forks=2: the two a wave starts with
+    assert all(link.closed for name, link in links.items() if name not in ("r0", "r1"))
+
+
 def test_an_unreachable_canary_is_reported_from_the_precheck_without_a_second_connect(monkeypatch) -> None:
     import threading
 
