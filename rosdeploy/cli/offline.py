@@ -121,8 +121,7 @@ def _render_to(root: Path, render: Callable[[Any], tuple[dict[str, RenderedRelea
     try:
         if writer is None:
             releases, warnings = render(None)
-            for name, release in releases.items():
-                writeout.write_release(str(root / name), writeout.files_of(release))
+            writeout.write_all(root, releases)
             return releases, warnings
         done = False
         try:

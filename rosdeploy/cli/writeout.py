@@ -15,7 +15,7 @@ import pickle
 import shutil
 import tempfile
 from pathlib import Path
-from typing import IO, Any, Iterable, Iterator
+from typing import IO, Any, Iterable, Iterator, Mapping
 
 from rosdeploy.errors import InputError, Problem
 from rosdeploy.model import RenderedRelease
@@ -108,6 +108,28 @@ class Writer:
             raise OSError(0, reason, filename or None)
 
 
+def write_all(root: Path, releases: Mapping[str, RenderedRelease]) -> None:
+    """Where no child can write: every release after the checks, the same way (staged, then moved
+    into place; a failure leaves no staging folder, and no `root` when this made it)."""
+    created = not root.exists()
+    root.mkdir(parents=True, exist_ok=True)
+    stage = tempfile.mkdtemp(prefix=STAGE_PREFIX, dir=root)
+    done = False
+    try:
+        for name, release in releases.items():
+            write_release(os.path.join(stage, name), files_of(release))
+        _move_into_place(stage, root, releases)
+        done = True
+    finally:
+        _clean(stage, root, drop_root=created and not done)
+
+
+def _clean(stage: str, root: Path, drop_root: bool) -> None:
+    shutil.rmtree(stage, ignore_errors=True)
+    if drop_root:
+        shutil.rmtree(root, ignore_errors=True)
+
+
 def _widen(fd: int) -> None:
     """A 1 MB pipe (Linux) instead of 64 KB: the renderer runs ~100 robots ahead of a disk that
     stalls for a moment (a journal commit) instead of ~6, and waits only at the end if at all."""
@@ -133,9 +155,7 @@ def _child(data_fd: int, status_fd: int, stage: str, root: Path, created: bool) 
     except BaseException as exc:               # Ctrl-C reaches the child too: clean up all the same
         failed = failed or f"\0{exc!r}"
     finally:
-        shutil.rmtree(stage, ignore_errors=True)
-        if created and (failed or not commit):
-            shutil.rmtree(root, ignore_errors=True)
+        _clean(stage, root, drop_root=created and bool(failed or not commit))
         os.write(status_fd, failed.encode("utf-8"))
         os._exit(1 if failed else 0)           # not sys.exit: the parent's buffers are not ours to flush
 

@@ -74,17 +74,21 @@ def robot_sh(robot: str, script: str) -> str:
     return result.stdout
 
 
-def remove_images(robot: str, tags: tuple[str, ...]) -> None:
-    """Drop the demo images of `tags` on a robot (and the layers no other image holds).
+def remove_images(robot: str, tags: tuple[str, ...] | None) -> None:
+    """Drop the demo images of `tags` on a robot (and the layers no other image holds);
+    `None`: every image, tagged or not.
 
     Again while one is left: a previous run's deploy guard may still be starting in the
     background (it runs from a release image, and leaves by itself once it finds itself
-    disarmed), holding its image for a moment after the containers were removed."""
-    refs = " ".join(f"registry.local:5000/demo/{n}:{t}" for n in NODES for t in tags)
+    disarmed), holding its image for a moment after the containers were removed; `rmi -f`
+    then only untags it, and the image stays, dangling, until the guard is gone."""
+    refs = " ".join(f"registry.local:5000/demo/{n}:{t}" for n in NODES for t in tags or ())
+    remove = f"docker rmi -f {refs}" if tags is not None else "docker images -aq | xargs -r docker rmi -f"
+    left = f"for ref in {refs}; do docker images -q \"$ref\"; done" if tags is not None else "docker images -aq"
     for _ in range(15):
-        robot_sh(robot, f"docker ps -aq | xargs -r docker rm -f >/dev/null; docker rmi -f {refs} >/dev/null 2>&1; "
+        robot_sh(robot, f"docker ps -aq | xargs -r docker rm -f >/dev/null; {remove} >/dev/null 2>&1; "
                         "docker image prune -f >/dev/null; true")
-        if not robot_sh(robot, f"for ref in {refs}; do docker images -q \"$ref\"; done").strip():
+        if not robot_sh(robot, left).strip():
             return
         time.sleep(1)
 
@@ -154,7 +158,7 @@ def test_isolated_robot_over_ssh_deploy_upgrade_bad_release_and_rollback(fleet, 
 def test_rate_cap_and_resume_after_the_link_drops(fleet, tmp_path: Path) -> None:
     """A first deploy onto a robot with no images (once, on robot3): capped at 2 MB/s,
     the link cut at about half, then applied again: only what had not arrived whole is sent."""
-    remove_images("robot3", ("1.0.0", "1.1.0", "1.2.0-bad"))
+    remove_images("robot3", None)
     assert not robot_sh("robot3", "docker images -q"), "robot3 must start with no image"
     simulator.isolate("robot3", "registry")
     capped = ssh_fleet(fleet, tmp_path, ssh={"command_timeout": "40s", "connect_timeout": "3s"}, max_rate="2MB/s")

@@ -11,6 +11,14 @@ from rosdeploy.errors import InputError
 from rosdeploy.model import RenderedFile, RenderedRelease
 
 
+@pytest.fixture(autouse=True, params=["child", "afterwards"])
+def way(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Each test both ways: through the child writer, and written after the checks (no fork). The
+    child is forced even if an earlier test left a thread behind (can_fork would refuse then)."""
+    monkeypatch.setattr(writeout, "can_fork", lambda: request.param == "child")
+    return request.param
+
+
 def release(host: str, secret: str = "s3cret") -> RenderedRelease:
     files = (RenderedFile("compose.yml", f"services: {{}}  # {host}\n"), RenderedFile(".env", f"K={secret}\n", 0o600),
              RenderedFile("store/abc/fastdds.xml", "<dds/>\n"))
@@ -28,7 +36,16 @@ def renders(*releases: RenderedRelease, then: BaseException | None = None):
     return render
 
 
-def test_every_release_lands_with_its_modes_and_no_staging(tmp_path: Path) -> None:
+def test_every_release_lands_with_its_modes_and_no_staging(tmp_path: Path, way: str,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    sent: list[str] = []
+    real_send = writeout.Writer.send
+
+    def send(self: writeout.Writer, r: RenderedRelease) -> None:
+        sent.append(r.host)
+        real_send(self, r)
+
+    monkeypatch.setattr(writeout.Writer, "send", send)
     root = tmp_path / "out"
     done, _ = offline._render_to(root, renders(release("a"), release("b")))
     assert list(done) == ["a", "b"]
@@ -36,26 +53,17 @@ def test_every_release_lands_with_its_modes_and_no_staging(tmp_path: Path) -> No
     assert (root / "a" / "store" / "abc" / "fastdds.xml").read_text() == "<dds/>\n"
     assert stat.S_IMODE((root / "b" / ".env").stat().st_mode) == 0o600
     assert stat.S_IMODE((root / "b" / "compose.yml").stat().st_mode) == 0o644
+    assert sent == (["a", "b"] if way == "child" else [])   # the way this test meant is the way it went
 
 
 @pytest.mark.parametrize("failure", [InputError([]), KeyboardInterrupt()])
 def test_a_run_that_fails_after_some_robots_were_sent_leaves_nothing_and_keeps_its_own_error(
         tmp_path: Path, failure: BaseException) -> None:
-    """A refusal stays a refusal and Ctrl-C stays an interrupt (the child is interrupted too)."""
+    """A refusal stays a refusal and Ctrl-C stays an interrupt, with nothing left on disk."""
     root = tmp_path / "out"
     with pytest.raises(type(failure)):
         offline._render_to(root, renders(release("a"), release("b"), then=failure))
     assert not root.exists()
-
-
-def test_without_fork_the_releases_are_written_afterwards(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(writeout, "can_fork", lambda: False)
-    root = tmp_path / "out"
-    offline._render_to(root, renders(release("a")))
-    assert (root / "a" / ".env").read_text() == "K=s3cret\n"
-    with pytest.raises(InputError):
-        offline._render_to(tmp_path / "refused", renders(release("a"), then=InputError([])))
-    assert not (tmp_path / "refused").exists()
 
 
 def test_a_file_name_that_leaves_the_robot_folder_is_refused(tmp_path: Path) -> None:
