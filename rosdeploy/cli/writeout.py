@@ -69,9 +69,8 @@ class Writer:
     """Releases sent with send() are written by a child process; finish(commit=True) puts them in place."""
 
     def __init__(self, root: Path) -> None:
-        self.root, self.created = root, not root.exists()
-        root.mkdir(parents=True, exist_ok=True)
-        self.stage = tempfile.mkdtemp(prefix=STAGE_PREFIX, dir=root)
+        self.root = root
+        self.created, self.stage = _staging(root)
         data_r, data_w = os.pipe()
         status_r, status_w = os.pipe()
         self.pid = os.fork()
@@ -111,9 +110,7 @@ class Writer:
 def write_all(root: Path, releases: Mapping[str, RenderedRelease]) -> None:
     """Where no child can write: every release after the checks, the same way (staged, then moved
     into place; a failure leaves no staging folder, and no `root` when this made it)."""
-    created = not root.exists()
-    root.mkdir(parents=True, exist_ok=True)
-    stage = tempfile.mkdtemp(prefix=STAGE_PREFIX, dir=root)
+    created, stage = _staging(root)
     done = False
     try:
         for name, release in releases.items():
@@ -122,6 +119,13 @@ def write_all(root: Path, releases: Mapping[str, RenderedRelease]) -> None:
         done = True
     finally:
         _clean(stage, root, drop_root=created and not done)
+
+
+def _staging(root: Path) -> tuple[bool, str]:
+    """Whether `root` is made now, and a new staging folder inside it."""
+    created = not root.exists()
+    root.mkdir(parents=True, exist_ok=True)
+    return created, tempfile.mkdtemp(prefix=STAGE_PREFIX, dir=root)
 
 
 def _clean(stage: str, root: Path, drop_root: bool) -> None:
