@@ -57,8 +57,8 @@ start_guard() {
 }
 started_guard() {
   for img in "$@"; do
-    # shellcheck disable=SC2034 # two tries; which one it is does not matter
-    for try in 1 2; do
+    tries=0
+    while :; do
       if docker run -d --pull never --name "$guard_name" --label "rosdeploy.guard=$project" --restart always \
            --network none --no-healthcheck --user 0:0 -e HOME="$HOME" -v /:/host --entrypoint chroot "$img" \
            --userspec="$(id -u):$(id -g)" --groups="$(id -G | tr ' ' ,)" \
@@ -66,6 +66,15 @@ started_guard() {
         printf '%s\n' "$guard_name" > "$g/container"; return 0
       fi
       docker rm -f "$guard_name" >/dev/null 2>&1     # one leaving, a stale one, or no chroot in $img
+      tries=$((tries + 1))
+      # A guard that is leaving (its run just disarmed it) holds the name until dockerd has
+      # removed it: wait for that, up to ~5 s. Otherwise one more try, then the next image.
+      if docker inspect "$guard_name" >/dev/null 2>&1; then
+        [ $tries -lt 10 ] || break
+        sleep 0.5
+      else
+        [ $tries -lt 2 ] || break
+      fi
     done
   done
   echo "no image to run the deploy guard from: $*" >> "$g/log"; return 1
