@@ -151,7 +151,8 @@ def _precheck(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Render
         notify("unchanged", {"hosts": [r.host for r in done]})
         for r in done:
             ctx.progress(r.host, r.outcome)
-    waves = plan_waves([h for h in hosts if h.name not in {r.host for r in done}], policy)
+    settled = {r.host for r in done}     # once: 5,000 robots would rebuild it per robot
+    waves = plan_waves([h for h in hosts if h.name not in settled], policy)
     first = {h.name for h in waves[0]} if waves else set()
     known = {r.host: r for r, _ in checked if r is not None and r.outcome != UNCHANGED and r.host in first}
     handoff = Handoff({h.name: t for h, (_, t) in zip(hosts, checked, strict=True) if t is not None}, ctx.connect)

@@ -10,12 +10,13 @@ there was none. Where there is no fork() (Windows), the releases are written aft
 """
 from __future__ import annotations
 
+import functools
 import os
 import pickle
 import shutil
 import tempfile
 from pathlib import Path
-from typing import IO, Any, Iterable, Iterator, Mapping
+from typing import IO, Any, Callable, Iterable, Iterator, Mapping
 
 from rosdeploy.errors import InputError, Problem
 from rosdeploy.model import RenderedRelease
@@ -153,7 +154,7 @@ def _child(data_fd: int, status_fd: int, stage: str, root: Path, created: bool) 
                     commit = True
                 elif not failed:               # after a failure: only drain, so the sender never blocks
                     names.append(message[0])
-                    failed = _attempt(lambda m=message: write_release(os.path.join(stage, m[0]), m[1]))
+                    failed = _attempt(functools.partial(write_release, os.path.join(stage, message[0]), message[1]))
         if commit and not failed:
             failed = _attempt(lambda: _move_into_place(stage, root, names))
     except BaseException as exc:               # Ctrl-C reaches the child too: clean up all the same
@@ -172,7 +173,7 @@ def _messages(pipe: IO[bytes]) -> Iterator[Any]:
             return
 
 
-def _attempt(work: Any) -> str:
+def _attempt(work: Callable[[], None]) -> str:
     try:
         work()
     except OSError as exc:
