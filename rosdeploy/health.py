@@ -31,6 +31,9 @@ FAST_WINDOW = 15.0   # s after a start during which the gate polls fast
 # s a new release's services may stay `starting` before the ROS probe looks for their topics
 # (a good demo node passes its own check in ~2.5 s here, so a healthy start costs no probe)
 EARLY_LOOK_AFTER = 3.0
+# s the early look listens at least, however late it begins: the probe's own DDS participant
+# needs a moment to discover publishers that are there
+LOOK_AT_LEAST = 2.0
 T = TypeVar("T")
 PROBE_SOURCE = (Path(__file__).parent / "ros_probe.py").read_text(encoding="utf-8")
 
@@ -122,11 +125,13 @@ class Poller:
         self.woken = threading.Event()         # a watch ended: poll now, not at the next tick
         self.fresh: tuple[Container, ...] | None = None   # read by `up` just now: the next poll
         self.look: Future[Verdict] | None = None   # the early presence probe (look_for_topics)
+        self.started_at: float | None = None       # when the last `up` returned (its containers started)
 
     def seed(self, containers: tuple[Container, ...] | None) -> None:
         """Containers `up` listed after starting them: the next poll takes them instead of
         reading again, so the health watches begin as soon as `up` returns."""
         self.fresh = containers
+        self.started_at = time.monotonic()
 
     def watching(self, containers: tuple[Container, ...], waiting: Mapping[str, str]) -> bool:
         """Is every service still waited for a container whose watch is running?"""
@@ -193,13 +198,19 @@ class Poller:
                         since: float, deadline: float) -> Verdict | None:
         """A new release still `starting` EARLY_LOOK_AFTER s after its start: one presence-only
         probe (no rates) for the topics of the services already running. A topic still missing
-        after the whole discovery wait, while its container ran, fails the gate there: Docker's
-        own verdict would come only after the image's start period and retries (~20 s for the
-        demo's silent 1.2.0-bad). One look per start; a failure it cannot pin is left to Docker."""
+        `health.topics_within` after its container started (the last `up`, which started it or
+        a later level), while its container ran, fails the gate there: Docker's own verdict
+        would come only after the image's start period and retries (~20 s for the demo's silent
+        1.2.0-bad). One look per start; a failure it cannot pin is left to Docker."""
         if self.look is None:
-            if waiting and time.monotonic() - since >= EARLY_LOOK_AFTER:
+            now = time.monotonic()
+            if waiting and now - since >= EARLY_LOOK_AFTER:
                 running = {c.service for c in containers if c.status == "running"}
-                self.look = _start_look(self.t, self.spec, containers, running, deadline, self.woken)
+                # the look begins late on purpose (a healthy start needs none): what it listens
+                # is what is left of topics_within, counted from the start, not a fresh wait
+                left = self.spec.health.topics_within - (now - (self.started_at or since))
+                self.look = _start_look(self.t, self.spec, containers, running, deadline, self.woken,
+                                        max(left, LOOK_AT_LEAST))
             return None
         if not self.look.done() or self.look.exception() is not None:
             return None
@@ -208,12 +219,12 @@ class Poller:
 
 
 def _start_look(t: Transport, spec: FleetSpec, containers: tuple[Container, ...], running: set[str],
-                deadline: float, done: threading.Event) -> Future[Verdict]:
+                deadline: float, done: threading.Event, within: float) -> Future[Verdict]:
     topics = [{"name": topic.name, "min_rate": None} for s in spec.services
               if s.name in running and not s.profiles for topic in s.topics]
     if not topics or probe_service(spec) not in running:
         return _finished(Verdict(True, "nothing to look for yet"))
-    policy = replace(spec.health, topic_window=0.0)
+    policy = replace(spec.health, topic_window=0.0, topics_within=within)
     return _in_background(lambda: _probe_graph(t, spec, containers, policy, deadline, topics), done)
 
 

@@ -13,17 +13,23 @@ import os
 import sys
 import time
 
+# The discovery wait counts from here, before rclpy's import and init (~1 s on a busy
+# robot): the controller's topics_within is a time since the containers started, not
+# since this participant was ready.
+ASKED = time.monotonic()
+AFTER_INIT_AT_LEAST = 1.0   # s a participant needs to see publishers that are already there
+
 
 def _message_class(type_name):
     package, _, name = type_name.split("/")   # "sensor_msgs/msg/JointState"
     return getattr(importlib.import_module(package + ".msg"), name)
 
 
-def _discover(node, rclpy, wanted, timeout, published=False):
-    """Topic -> types once every wanted topic is on the graph (or the timeout). `published`:
-    only topics with a publisher count (a subscriber, e.g. an image's health watcher, puts
-    a topic on the graph too)."""
-    deadline = time.monotonic() + timeout
+def _discover(node, rclpy, wanted, deadline, published=False):
+    """Topic -> types once every wanted topic is on the graph (or the deadline, a monotonic
+    time). `published`: only topics with a publisher count (a subscriber, e.g. an image's
+    health watcher, puts a topic on the graph too)."""
+    deadline = max(deadline, time.monotonic() + AFTER_INIT_AT_LEAST)
     found = {}
     while time.monotonic() < deadline:
         found = dict(node.get_topic_names_and_types())
@@ -68,7 +74,8 @@ def probe(spec):
     node = rclpy.create_node("rosdeploy_probe_%d" % os.getpid())
     try:
         topics = {t["name"]: t.get("min_rate") for t in spec["topics"]}
-        found = _discover(node, rclpy, set(topics), spec.get("discovery_timeout", 10.0), spec.get("published", False))
+        found = _discover(node, rclpy, set(topics), ASKED + spec.get("discovery_timeout", 10.0),
+                          spec.get("published", False))
         rated = {n: r for n, r in topics.items() if r and n in found}
         rates = _measure(node, rclpy, rated, found, spec.get("window", 3.0)) if rated else {}
     finally:
@@ -126,7 +133,7 @@ def readiness(spec):
     conds = spec["ready"]
     seen = [{} for _ in conds]
     try:
-        found = _discover(node, rclpy, {c["topic"] for c in conds}, spec.get("wait", 3.0))
+        found = _discover(node, rclpy, {c["topic"] for c in conds}, time.monotonic() + spec.get("wait", 3.0))
         subs = []
         for i, c in enumerate(conds):
             if c["topic"] not in found:

@@ -260,4 +260,24 @@ def test_topics_within_sets_the_probe_wait_and_names_itself(monkeypatch) -> None
     verdict = wait_healthy(t, spec, checks_only=True, services=("driver",), fail_fast=True,
                            deadline=time.monotonic() + 60)
     assert not verdict.ok and "45s after its container started (health.topics_within)" in verdict.reason
-    assert sent and all(s["discovery_timeout"] == 45.0 for s in sent)
+    assert sent and all(44.0 < s["discovery_timeout"] <= 45.0 for s in sent)
+
+
+def test_the_early_look_listens_only_what_is_left_of_topics_within(monkeypatch) -> None:
+    """It begins EARLY_LOOK_AFTER s after the start on purpose; the wait still counts from
+    when `up` started the containers, so a silent node fails topics_within after its start."""
+    from rosdeploy.health import LOOK_AT_LEAST, Poller
+    monkeypatch.setattr("rosdeploy.health.EARLY_LOOK_AFTER", 0.0)
+    sent: list[dict] = []
+    for started_ago, within in ((3.0, 7.0), (60.0, LOOK_AT_LEAST)):
+        t = Scripted([[c("driver", health="starting")]], ABSENT)
+        answer = t.run
+        t.run = lambda command, answer=answer: (   # type: ignore[method-assign]
+            sent.append(json.loads(command.argv[-1])) if command.label.startswith("ros-probe") else None,
+            answer(command))[1]
+        poller = Poller(t, SLOW, watch=True)
+        poller.started_at = time.monotonic() - started_ago
+        verdict = wait_healthy(t, SLOW, checks_only=True, services=("driver",), fail_fast=True,
+                               poller=poller, deadline=time.monotonic() + 60)
+        assert not verdict.ok and "10s after its container started" in verdict.reason
+        assert within - 0.5 < sent[-1]["discovery_timeout"] <= within

@@ -65,7 +65,22 @@ class GraphNode(FakeNode):
         return 1 if name == "/published" else 0
 
 
-def test_a_topic_with_only_subscribers_is_not_found_when_publishers_count() -> None:
-    found = ros_probe._discover(GraphNode(), FakeRclpy, {"/watched", "/published"}, 0.2, published=True)
+def test_a_topic_with_only_subscribers_is_not_found_when_publishers_count(monkeypatch) -> None:
+    monkeypatch.setattr(ros_probe, "AFTER_INIT_AT_LEAST", 0.0)
+    found = ros_probe._discover(GraphNode(), FakeRclpy, {"/watched", "/published"}, time.monotonic() + 0.2,
+                                published=True)
     assert "/published" in found and "/watched" not in found
-    assert {"/watched", "/published"} <= set(ros_probe._discover(GraphNode(), FakeRclpy, {"/watched"}, 0.2))
+    found = ros_probe._discover(GraphNode(), FakeRclpy, {"/watched"}, time.monotonic() + 0.2)
+    assert {"/watched", "/published"} <= set(found)
+
+
+def test_discovery_ends_at_its_deadline_but_listens_a_moment_after_init(monkeypatch) -> None:
+    """The deadline counts from when the probe was asked; a slow rclpy init that used it up
+    still leaves the participant AFTER_INIT_AT_LEAST to see what is there."""
+    monkeypatch.setattr(ros_probe, "AFTER_INIT_AT_LEAST", 0.3)
+    began = time.monotonic()
+    ros_probe._discover(GraphNode(), FakeRclpy, {"/missing"}, began - 5.0)
+    assert 0.3 <= time.monotonic() - began < 1.0
+    began = time.monotonic()
+    ros_probe._discover(GraphNode(), FakeRclpy, {"/missing"}, began + 0.6)
+    assert 0.6 <= time.monotonic() - began < 1.2
