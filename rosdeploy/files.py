@@ -82,6 +82,12 @@ class FileRenderer:
                                                            "this robot: set it in its host_vars or group_vars"))
                 return None
             value = scope[entry.source]
+            if isinstance(value, jinja2.Undefined):   # its template failed: reading it says why
+                try:
+                    str(value)
+                except jinja2.TemplateError as exc:
+                    problems.append(self._problem(host, entry, exc.message or str(exc)))
+                    return None
             return value if isinstance(value, str) else yaml.safe_dump(value, sort_keys=True, default_flow_style=False)
         try:
             rel = render_value(self.paths[entry.name], scope)

@@ -64,11 +64,15 @@ def convert(r: Any, kp: tuple, value: Any) -> Window | bool | None:
     match = _START_RE.fullmatch(start) if isinstance(start, str) else None
     if match is None:
         r.error(kp + ("start",), f'required: the local time the window opens, quoted, e.g. "01:00"; got {start!r}')
+    # Each refusal is also kept here: the reader shows no second message under a value it
+    # already refused (control characters), so its problem count need not grow.
+    duration: float | None = None
     try:
         duration = parse_duration(value.get("duration"))
         if not 0 < duration <= 7 * 86400:
             raise ValueError
     except ValueError:
+        duration = None
         r.error(kp + ("duration",), f"required: how long it stays open, e.g. 3h or 90m (at most 7 days); "
                                     f"got {value.get('duration')!r}")
     tz = value.get("tz", "UTC")
@@ -76,7 +80,8 @@ def convert(r: Any, kp: tuple, value: Any) -> Window | bool | None:
         ZoneInfo(str(tz))
     except (ZoneInfoNotFoundError, ValueError):
         r.error(kp + ("tz",), f"{tz!r} is not a time zone name: use an IANA name like Europe/Berlin or UTC")
-    if len(r.problems) > before or match is None:
+        tz = None
+    if len(r.problems) > before or match is None or duration is None or tz is None:
         return None
     return Window(frozenset(days), dtime(int(match.group(1)), int(match.group(2)), int(match.group(3) or 0)),
                   timedelta(seconds=duration), str(tz))

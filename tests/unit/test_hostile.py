@@ -261,6 +261,16 @@ MALFORMED = {
     "huge number": (fleet_append("preflight: {min_free_disk_mb: " + "9" * 5000 + "}\n"), "preflight"),
     "float overflow": (fleet_key(lambda d: d["services"]["driver"].update(resources={"cpus": float("inf")})),
                        "services.driver.resources.cpus"),
+    # a control character is refused once, at its key; what the converter then makes of the
+    # value (no further message under that key) must not crash it
+    "newline in a window's duration": (fleet_key(lambda d: d.update(
+        window={"days": ["mon"], "start": "01:00", "duration": "x\ny"})), "window.duration"),
+    "newline in a ready timing": (fleet_key(lambda d: d.update(
+        ready={"interval": "1\n0s", "when": [{"lock": "/var/lib/x.lock"}]})), "ready.interval"),
+    "a files var whose template fails": (lambda lab: (
+        fleet_key(lambda d: (d.update(files={"cal": {"var": "calibration", "target": "/config/cal.yaml"}}),
+                             d["services"]["driver"].update(files=["cal"])))(lab),
+        vars_file("calibration: '{{ 1/0 }}'\n")(lab)), "extra.yml:1: calibration"),
 }
 
 
