@@ -98,7 +98,10 @@ def parse_time(stamp: str) -> datetime:
 def test_a_busy_robot_is_deferred_then_switches_when_idle_and_one_that_stays_busy_is_reported(
         fleet, tmp_path: Path) -> None:
     gate = {"interval": "2s", "max_wait": "150s", "when": [IDLE]}
-    inv = inventory(fleet, tmp_path, robot3={"ready": {"interval": "2s", "max_wait": "8s", "when": [IDLE]}})
+    # robot3's reason is its last check's observation: a topic_wait above the default 3 s, so a
+    # probe starting on a loaded CI machine still sees /robot_mode (seen once: "not on the graph")
+    inv = inventory(fleet, tmp_path, robot3={"ready": {"interval": "2s", "max_wait": "8s", "topic_wait": "6s",
+                                                       "when": [IDLE]}})
     fleet_path = fleet_file(tmp_path, inv, ready=gate)
     assert apply(fleet_path).code == EXIT_OK           # 1.0.0 everywhere (idle: nothing running yet)
     robot2, robot3 = RobotShell(fleet, "robot2"), RobotShell(fleet, "robot3")
