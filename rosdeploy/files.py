@@ -88,6 +88,10 @@ class FileRenderer:
                 except jinja2.TemplateError as exc:
                     problems.append(self._problem(host, entry, exc.message or str(exc)))
                     return None
+                # An Undefined that reads as "" (not strict) must not become an empty file, nor reach yaml.
+                problems.append(self._problem(host, entry, f"inventory variable {entry.source!r} is undefined for "
+                                                           "this robot: check its template in host_vars or group_vars"))
+                return None
             return value if isinstance(value, str) else yaml.safe_dump(value, sort_keys=True, default_flow_style=False)
         try:
             rel = render_value(self.paths[entry.name], scope)

@@ -116,3 +116,14 @@ def test_a_missing_inventory_var_names_the_robot(repo: Path) -> None:
     with pytest.raises(RenderError) as info:
         renderer.render(bare)
     assert any("camera_calibration" in p.message and "'r2'" in p.message for p in info.value.problems)
+
+
+def test_an_undefined_inventory_var_that_reads_empty_is_refused_not_written(repo: Path) -> None:
+    # Inventory templates use StrictUndefined; a lenient Undefined (another loader, a plugin) must
+    # still not become an empty file on the robot, nor reach the YAML dumper.
+    import jinja2
+    renderer = Renderer(load_fleet(write(repo, FLEET)))
+    with pytest.raises(RenderError) as info:
+        renderer.render(host("r1", camera_calibration=jinja2.Undefined(name="camera_calibration")))
+    assert any("camera_calibration" in p.message and "undefined" in p.message and p.key == "files.calib.var"
+               for p in info.value.problems), info.value.problems
