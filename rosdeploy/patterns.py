@@ -51,7 +51,8 @@ def select(pattern: str | None, hosts: Sequence[str], groups: Mapping[str, Seque
         return tuple(hosts)
     terms = split(pattern)
     if not terms:
-        raise _error(where, f"pattern {pattern!r} is empty: give host or group names, e.g. 'site_north:!amr-n2'")
+        what = "names no host or group (a `[` without its `]`?)" if pattern.strip(" ,:") else "is empty"
+        raise _error(where, f"pattern {pattern!r} {what}: give host or group names, e.g. 'site_north:!amr-n2'")
     unmatched: list[Problem] = []
     chosen = _evaluate(terms, hosts, groups, where, unmatched)
     if warnings is not None:

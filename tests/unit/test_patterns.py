@@ -120,6 +120,9 @@ def test_empty_result_is_an_error_naming_the_pattern():
 def test_empty_pattern_and_bad_regex():
     with pytest.raises(InventoryError, match="empty"):
         names(" , ")
+    for unclosed in ("[", "[[", ":["):      # no term survives the split: not called empty
+        with pytest.raises(InventoryError, match=r"names no host or group \(a `\[` without its `\]`\?\)"):
+            names(unclosed)
     with pytest.raises(InventoryError, match="invalid regular expression"):
         names("~amr-(")
 
