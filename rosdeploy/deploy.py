@@ -465,14 +465,40 @@ def precheck_host(ctx: RunContext, host: Host, release: RenderedRelease) -> tupl
     return None, run.t
 
 
-def _unchanged(run: RobotRun, release: RenderedRelease, state: RobotState) -> HostResult | None:
-    """UNCHANGED when the robot runs this release, healthy and unlocked: nothing to do."""
+def _unchanged(run: RobotRun, release: RenderedRelease, state: RobotState, repair: bool = False,
+               ) -> HostResult | None:
+    """UNCHANGED when the robot runs this release, healthy and unlocked, its host changes in place.
+
+    Host changes edited or removed on the robot since (a udev rule, the rotation schedule) are
+    put back when `repair`, under the lock and restarting nothing; the rollout's pre-check, which
+    changes nothing, leaves such a robot to its wave."""
     if state.current == release.release_id:    # just deployed: judge `starting` services the way the gate did
         state = replace(state, containers=settled(run.t, run.spec, state.containers))
-    if state.lock is None and up_to_date(state, release, run.spec):
+    if state.lock is not None or not up_to_date(state, release, run.spec):
+        return None
+    drifted = hostchanges.drift(state.host_files, release, run.spec.project) if run.ctx.host_changes else ()
+    if not drifted:
         return run.result(UNCHANGED, running_release=state.current, reason="already on this release and healthy",
                           old_release=state.current, new_release=release.release_id)
-    return None
+    return _put_back(run, release, drifted) if repair else None
+
+
+def _put_back(run: RobotRun, release: RenderedRelease, drifted: tuple[str, ...]) -> HostResult:
+    """The running release's host changes installed again: the containers are left as they run."""
+    new = release.release_id
+    base = {"running_release": new, "old_release": new, "new_release": new}
+    holder = run.lock()
+    if holder is not None:
+        return run.result(LOCKED, reason=f"locked by {describe(holder)} (wait, or clear a stale lock with "
+                          "--break-lock)", **base)
+    ok = _host_changes(run, new, hostchanges.mapped_devices(run.spec, run.host))
+    run.unlock()
+    what = ", ".join(drifted)
+    if not ok:
+        return run.result(FAILED, reason=f"already on this release and healthy, but its host changes differ on "
+                          f"the robot ({what}) and could not be put back: {run.steps[-1].detail}", **base)
+    return run.result(UNCHANGED, reason=f"already on this release and healthy; put back its host changes, which "
+                      f"differed on the robot: {what}", **base)
 
 
 def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
@@ -481,7 +507,7 @@ def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
     base = {"old_release": old, "new_release": new}
     if run.ctx.cancel.is_set():
         return run.result(SKIPPED, running_release=old, reason="interrupted before this robot started", **base)
-    done = _unchanged(run, release, state)
+    done = _unchanged(run, release, state, repair=True)
     if done is not None:
         return done
     state = run.read_state(full=True)    # the preflight facts, only when something will change

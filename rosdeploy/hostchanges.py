@@ -125,6 +125,20 @@ def describe(release: RenderedRelease, project: str) -> tuple[str, ...]:
     return tuple(out)
 
 
+def drift(installed: Mapping[str, str] | None, release: RenderedRelease, project: str) -> tuple[str, ...]:
+    """The host-change files on the robot that differ from what `release` installs: changed, removed, or
+    present where the release wants none. () when the state did not look, and for a file it cannot read."""
+    if installed is None:
+        return ()
+    out = []
+    for target, text in wanted(release, project).items():
+        have = installed.get(target)
+        want = hashlib.sha256(text.encode()).hexdigest() if text is not None else None
+        if have != "?" and have != want:
+            out.append(target)
+    return tuple(out)
+
+
 def mapped_devices(spec: FleetSpec, host: Host) -> tuple[str, ...]:
     """The robot paths of the devices the services use (what must resolve before anything restarts)."""
     used = {d for s in spec.services for d in s.devices}

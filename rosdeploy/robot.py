@@ -76,6 +76,8 @@ class RobotState:
     guard: Guard | None = None           # a deploy guard armed (or acting) on the robot
     clock: int | None = None             # the robot's clock (s since the epoch), for the guard's deadline
     boot: str = ""                       # the robot's boot id
+    # Installed host-change file -> its sha256 ("?": unreadable); None when the state did not look.
+    host_files: Mapping[str, str] | None = None
 
     @property
     def running_release(self) -> str | None:
@@ -129,7 +131,13 @@ def parse_state(stdout: str) -> RobotState:
         kept_manifests={name.split(" ", 1)[1]: text for name, text in s.items() if name.startswith("manifest ")},
         guard=parse_guard(s.get("guard-acting"), acting=True) or parse_guard(s.get("guard")),
         clock=int(s["clock"]) if s.get("clock", "").strip().isdigit() else None,
-        boot=s.get("boot", "").strip())
+        boot=s.get("boot", "").strip(),
+        host_files=_host_files(s["hostfiles"]) if "hostfiles" in s else None)
+
+
+def _host_files(text: str) -> dict[str, str]:
+    pairs = (line.split(" ", 1) for line in text.splitlines() if " " in line)
+    return {path: digest for digest, path in pairs}
 
 
 def _json(text: str | None) -> Any:

@@ -24,7 +24,8 @@ class RobotStatus:
     release: str | None = None
     version: str | None = None
     digest: str | None = None
-    drift: bool | None = None             # deployed != what the fleet file renders now
+    drift: bool | None = None             # deployed != what the fleet file renders now, or host_drift
+    host_drift: tuple[str, ...] = ()      # installed host-change files that differ from the release's
     healthy: bool = False
     problems: Mapping[str, str] = field(default_factory=dict)   # service -> why not healthy
     services: tuple[Mapping[str, Any], ...] = ()
@@ -68,10 +69,15 @@ def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) ->
     alive = holder_alive(state.lock, ctx.controller)
     word, reason = status_word(state, problems, alive)
     guard = state.guard
+    drift = None if release is None or not state.current else manifest.get("digest") != release.digest
+    host_drift = hostchanges.drift(state.host_files, release, ctx.spec.project) if release and drift is False else ()
+    if host_drift:
+        drift = True
+        reason = "; ".join(filter(None, [reason, "host changes differ on the robot (" + ", ".join(host_drift)
+                                          + "): `apply` puts them back"]))
     return RobotStatus(
         host.name, True, release=state.current, version=manifest.get("version"),
-        digest=manifest.get("digest"),
-        drift=None if release is None or not state.current else manifest.get("digest") != release.digest,
+        digest=manifest.get("digest"), drift=drift, host_drift=host_drift,
         healthy=word == "healthy", problems=problems,
         lock_alive=alive, running_release=state.running_release,
         active=None if state.running_release is None else state.running_release == state.current,
@@ -133,6 +139,7 @@ class RobotPlan:
     restarts: tuple[str, ...] = ()               # services whose containers the switch recreates
     keeps: tuple[str, ...] = ()                  # services whose containers keep running untouched
     host_changes: tuple[str, ...] = ()           # outside the release dir (rosdeploy.hostchanges)
+    host_drift: tuple[str, ...] = ()             # up to date, but these host-change files differ: put back
 
 
 def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPlan:
@@ -156,8 +163,10 @@ def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPla
                                      {c.service: c.hash for c in state.containers if c.status == "running"})
     pulls = tuple(line.split(" ", 1)[1] for line in sections.get("images", "").splitlines()
                   if line.startswith("missing "))
+    same = state.current == release.release_id
     return RobotPlan(host.name, True, current=state.current, new=release.release_id,
-                     up_to_date=state.current == release.release_id, diffs=diffs, pulls=pulls,
+                     up_to_date=same, diffs=diffs, pulls=pulls,
+                     host_drift=hostchanges.drift(state.host_files, release, ctx.spec.project) if same else (),
                      preflight=tuple(preflight(state, run, ctx.spec.min_free_disk_mb)), restarts=recreate,
                      keeps=tuple(sorted(set(restarts.release_hashes(release)) - set(recreate))),
                      host_changes=hostchanges.describe(release, ctx.spec.project),

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 from rosdeploy.output import Output, confirm
-from rosdeploy.results import OK_OUTCOMES, OUTCOMES, FleetResult, HostResult, version_of
+from rosdeploy.results import OK_OUTCOMES, OUTCOMES, UNCHANGED, FleetResult, HostResult, version_of
 
 
 
@@ -206,7 +206,9 @@ def summary(out: Output, result: FleetResult, folder: Path) -> None:
 def _row(h: HostResult) -> list[str]:
     old = version_of(h.old_release) or "-"
     now = version_of(h.running_release) or "-"
-    reason = h.reason if h.outcome not in OK_OUTCOMES else ""
+    # An OK outcome's reason is noise, except when a no-op put back host changes (deploy._put_back).
+    shown = h.outcome not in OK_OUTCOMES or (h.outcome == UNCHANGED and any(s.name == "host changes" for s in h.steps))
+    reason = h.reason if shown else ""
     return [h.host, str(h.wave or ""), h.outcome, f"{old} -> {now}", f"{h.seconds:.1f}s", reason[:160]]
 
 
@@ -235,7 +237,8 @@ def plan(out: Output, rows: Sequence[Any]) -> None:
             out.line(f"{r.host}: UNREACHABLE: {r.error}")
             continue
         if r.up_to_date:
-            out.line(f"{r.host}: up to date ({r.current})")
+            put_back = f"; apply puts back host changes that differ on the robot: {', '.join(r.host_drift)}"
+            out.line(f"{r.host}: up to date ({r.current})" + (put_back if r.host_drift else ""))
             continue
         out.line(out.paint(f"{r.host}: {r.current or 'nothing'} -> {r.new}", "bold"))
         for problem in r.preflight:

@@ -42,4 +42,13 @@ if [ "$mode" = full ]; then
   section devices
   for d in "$@"; do [ -e "$d" ] || printf 'missing %s\n' "$d"; done
 fi
+# The host changes installed (hostchanges.py): a no-op apply puts back what differs from its release.
+if [ "$mode" != switch ]; then
+  section hostfiles
+  for f in "/etc/udev/rules.d/99-rosdeploy-$project.rules" "/etc/logrotate.d/rosdeploy-$project" \
+           "/etc/cron.d/rosdeploy-$project"; do
+    if [ -r "$f" ]; then sha256sum < "$f" | { read -r sum _; printf '%s %s\n' "$sum" "$f"; }
+    elif [ -e "$f" ]; then printf '? %s\n' "$f"; fi
+  done
+fi
 section end

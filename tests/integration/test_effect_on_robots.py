@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from rosdeploy.errors import EXIT_OK
+from rosdeploy.errors import EXIT_OK, EXIT_PARTIAL
 from rosdeploy.sim import provision, robot_exec
 from robots import RobotShell, all_healthy, rosdeploy, versions, write_fleet, write_inventory
 from robots import apply as deploy
@@ -228,6 +228,32 @@ def test_a_rollback_restores_the_previous_rotation_schedule(fleet, tmp_path: Pat
     assert "* * * * * root logrotate" in shell.run(f"cat {CRON}"), "--no-host-changes leaves the schedule alone"
     assert deploy(off, "--limit", "robot1").code == EXIT_OK      # 1.0.0 again, a release of its own
     assert shell.run(f"ls {CRON} {CONF} 2>/dev/null || true") == "", "rotate_every: off removes the schedule"
+
+
+def test_a_no_op_apply_puts_back_host_changes_edited_on_the_robot_and_status_shows_them(fleet, tmp_path: Path,
+                                                                                        ) -> None:
+    fleet_file = _rotation_fleet(fleet, tmp_path)     # robot2 reaches root through sudo -n
+    assert deploy(fleet_file, "--limit", "robot2").code == EXIT_OK
+    shell = RobotShell(fleet, "robot2")
+    before, cron = _ids(shell), shell.run(f"cat {CRON}")
+    shell.run(f"echo '# edited by hand' >> {CRON} && rm -f {RULES}")
+    looked = rosdeploy("--json", "status", fleet_file, "--limit", "robot2")
+    row = looked.doc["robots"][0]
+    assert looked.code == EXIT_PARTIAL and row["drift"] is True and set(row["host_drift"]) == {CRON, RULES}, row
+    assert "`apply` puts them back" in row["reason"], row
+    planned = rosdeploy("--json", "plan", fleet_file, "--limit", "robot2").doc["robots"][0]
+    assert planned["up_to_date"] and set(planned["host_drift"]) == {CRON, RULES}, planned
+
+    left = deploy(fleet_file, "--limit", "robot2", "--no-host-changes")
+    assert left.host("robot2")["outcome"] == "unchanged" and "edited by hand" in shell.run(f"cat {CRON}")
+    fixed = deploy(fleet_file, "--limit", "robot2")
+    result = fixed.host("robot2")
+    assert fixed.code == EXIT_OK and result["outcome"] == "unchanged", result
+    assert all(w in result["reason"] for w in ("put back", CRON, RULES)), result
+    assert shell.run(f"cat {CRON}") == cron and 'SYMLINK+="robot/motor"' in _rules(shell)
+    assert _ids(shell) == before, "putting host changes back restarts nothing"
+    again = rosdeploy("--json", "status", fleet_file, "--limit", "robot2")
+    assert again.code == EXIT_OK and again.doc["robots"][0]["drift"] is False, again.doc
 
 
 def test_a_device_the_new_rules_should_create_is_checked_after_the_trigger(fleet, tmp_path: Path) -> None:

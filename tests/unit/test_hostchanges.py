@@ -266,3 +266,31 @@ def test_a_device_a_rule_makes_waits_for_the_trigger_only_when_the_rules_change(
     if refused:
         (message,) = found
         assert "/dev/robot/motor (`devices.motor`" in message and "with its udev rule installed already" in message
+
+
+# ------------------------------------------------------------- drift (a no-op apply puts back, status says)
+
+def _sha(text: str) -> str:
+    import hashlib
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def test_drift_names_each_installed_file_that_differs_from_the_release(tmp_path: Path) -> None:
+    release = _release(tmp_path, rotate_every="5m")
+    want = {t: text for t, text in hostchanges.wanted(release, "demo").items()}
+    rules, conf, cron = hostchanges.targets("demo")
+    assert all(want[t] for t in (rules, conf, cron)), want          # this release installs all three
+    installed = {t: _sha(text) for t, text in want.items() if text is not None}
+    assert hostchanges.drift(installed, release, "demo") == ()
+    assert hostchanges.drift({**installed, cron: _sha("edited\n")}, release, "demo") == (cron,)
+    assert hostchanges.drift({k: v for k, v in installed.items() if k != rules}, release, "demo") == (rules,)
+    assert hostchanges.drift({**installed, conf: "?"}, release, "demo") == (), "unreadable: not judged"
+    assert hostchanges.drift(None, release, "demo") == (), "the state did not look (a rollback's)"
+
+
+def test_a_schedule_left_where_the_release_wants_none_is_drift(tmp_path: Path) -> None:
+    release = _release(tmp_path, rotate_every="off")
+    rules, conf, cron = hostchanges.targets("demo")
+    installed = {rules: _sha(hostchanges.wanted(release, "demo")[rules] or "")}
+    assert hostchanges.drift(installed, release, "demo") == ()
+    assert hostchanges.drift({**installed, cron: _sha("* * * * * root logrotate\n")}, release, "demo") == (cron,)

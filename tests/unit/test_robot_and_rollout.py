@@ -33,6 +33,16 @@ def test_parse_state_reads_every_section() -> None:
     assert st.free_mb == 51234 and st.missing_devices == ("/dev/robot/lidar",)
     assert st.containers[0].name == "demo-driver-1" and st.containers[0].release == "1.1.0-bbb"
     assert st.manifest["digest"] == "bbb"
+    assert st.host_files is None, "no hostfiles section: not looked at, so never judged as drift"
+
+
+def test_parse_state_reads_the_installed_host_files() -> None:
+    text = state_text().replace("\n@@end\n", "\n@@hostfiles\nab12 /etc/cron.d/rosdeploy-demo\n"
+                                             "? /etc/logrotate.d/rosdeploy-demo\n\n@@end\n")
+    assert parse_state(text).host_files == {"/etc/cron.d/rosdeploy-demo": "ab12",
+                                            "/etc/logrotate.d/rosdeploy-demo": "?"}
+    empty = state_text().replace("\n@@end\n", "\n@@hostfiles\n\n@@end\n")
+    assert parse_state(empty).host_files == {}, "looked, and nothing is installed"
 
 
 @pytest.mark.parametrize("labels,flavor", [
