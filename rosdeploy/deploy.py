@@ -489,8 +489,7 @@ def _put_back(run: RobotRun, release: RenderedRelease, drifted: tuple[str, ...])
     base = {"running_release": new, "old_release": new, "new_release": new}
     holder = run.lock()
     if holder is not None:
-        return run.result(LOCKED, reason=f"locked by {describe(holder)} (wait, or clear a stale lock with "
-                          "--break-lock)", **base)
+        return run.result(LOCKED, reason=_locked_by(holder), **base)
     ok = _host_changes(run, new, hostchanges.mapped_devices(run.spec, run.host))
     run.unlock()
     what = ", ".join(drifted)
@@ -499,6 +498,10 @@ def _put_back(run: RobotRun, release: RenderedRelease, drifted: tuple[str, ...])
                           f"the robot ({what}) and could not be put back: {run.steps[-1].detail}", **base)
     return run.result(UNCHANGED, reason=f"already on this release and healthy; put back its host changes, which "
                       f"differed on the robot: {what}", **base)
+
+
+def _locked_by(holder: str) -> str:
+    return f"locked by {describe(holder)} (wait, or clear a stale lock with --break-lock)"
 
 
 def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
@@ -519,8 +522,7 @@ def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
         return run.result(FAILED, running_release=old, reason="preflight: " + "; ".join(problems), **base)
     holder = run.lock(run.guard_arm(state, release))
     if holder is not None:
-        return run.result(LOCKED, running_release=old, reason=f"locked by {describe(holder)} "
-                          "(wait, or clear a stale lock with --break-lock)", **base)
+        return run.result(LOCKED, running_release=old, reason=_locked_by(holder), **base)
     return _switch(run, release, state, base)
 
 
