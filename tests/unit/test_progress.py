@@ -83,3 +83,17 @@ def test_the_board_is_erased_before_the_summary() -> None:
         assert isinstance(view, report.Board)
         view.progress("robot1", "connect")
     assert out._live == [] and out.stdout.getvalue().endswith("\033[J")
+
+
+def test_the_summary_shows_an_unchanged_robots_reason_only_when_host_changes_were_put_back() -> None:
+    from rosdeploy.results import HostResult, Step
+    plain = HostResult("r1", "unchanged", "1.0.0-a", "1.0.0-a", "1.0.0-a", reason="already on this release and healthy",
+                       steps=(Step("connect", 0.1), Step("check", 0.1)))
+    put_back = HostResult("r2", "unchanged", "1.0.0-a", "1.0.0-a", "1.0.0-a",
+                          reason="already on this release and healthy; put back its host changes, which differed "
+                                 "on the robot: /etc/cron.d/rosdeploy-demo",
+                          steps=(Step("check", 0.1), Step("lock", 0.1), Step("host changes", 0.2, detail="installed")))
+    deployed = HostResult("r3", "deployed", None, "1.0.0-a", "1.0.0-a", reason="healthy",
+                          steps=(Step("host changes", 0.2, detail="installed"),))
+    assert report._row(plain)[-1] == "" and report._row(deployed)[-1] == ""
+    assert report._row(put_back)[-1].endswith("/etc/cron.d/rosdeploy-demo")
