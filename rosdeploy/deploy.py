@@ -480,19 +480,24 @@ def _unchanged(run: RobotRun, release: RenderedRelease, state: RobotState, repai
     if not drifted:
         return run.result(UNCHANGED, running_release=state.current, reason="already on this release and healthy",
                           old_release=state.current, new_release=release.release_id)
-    return _put_back(run, release, drifted) if repair else None
+    return _put_back(run, release, state, drifted) if repair else None
 
 
-def _put_back(run: RobotRun, release: RenderedRelease, drifted: tuple[str, ...]) -> HostResult:
-    """The running release's host changes installed again: the containers are left as they run."""
-    new = release.release_id
+def _put_back(run: RobotRun, release: RenderedRelease, state: RobotState, drifted: tuple[str, ...]) -> HostResult:
+    """The running release's host changes installed again: the containers are left as they run.
+    In the robot's maintenance window and when it is ready, as a switch would be."""
+    new, what = release.release_id, ", ".join(drifted)
     base = {"running_release": new, "old_release": new, "new_release": new}
     holder = run.lock()
     if holder is not None:
         return run.result(LOCKED, reason=_locked_by(holder), **base)
+    held = hold.before_switch(run, state, f"its host changes that differ on the robot ({what}) are put back "
+                                          "then; nothing changed")
+    if held is not None:
+        run.unlock()
+        return run.result(held.outcome, reason=held.reason, opens=held.opens, **base)
     ok = _host_changes(run, new, hostchanges.mapped_devices(run.spec, run.host))
     run.unlock()
-    what = ", ".join(drifted)
     if not ok:
         return run.result(FAILED, reason=f"already on this release and healthy, but its host changes differ on "
                           f"the robot ({what}) and could not be put back: {run.steps[-1].detail}", **base)

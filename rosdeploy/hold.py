@@ -1,8 +1,9 @@
 """May this robot switch now? Its maintenance window, then its readiness gate.
 
-Called by deploy.py on a robot that is locked, with the new images pulled, before
-anything restarts. Window first: it costs nothing (the controller's clock), and a robot
-outside its window need not be asked whether it is busy.
+Called by deploy.py on a robot that is locked: with the new images pulled, before
+anything restarts; or before host changes that drifted on the robot are put back (a
+`udevadm trigger` is not for a robot on a mission either). Window first: it costs nothing
+(the controller's clock), and a robot outside its window need not be asked whether it is busy.
 """
 from __future__ import annotations
 
@@ -23,11 +24,12 @@ class Held:
     opens: str | None = None
 
 
-def before_switch(run: Any, state: Any) -> Held | None:
-    """`run`: deploy.RobotRun (its transport, spec, host, ctx, step). None: go ahead."""
+def before_switch(run: Any, state: Any, kept: str = "images pulled, nothing restarted") -> Held | None:
+    """`run`: deploy.RobotRun (its transport, spec, host, ctx, step). None: go ahead. `kept`
+    ends the reason of a deferral: what the robot keeps meanwhile."""
     if run.ctx.force:
         return None
-    closed = _window_closed(run)
+    closed = _window_closed(run, kept)
     if closed is not None:
         return closed
     policy = ready.host_setting(run.spec, run.host, "ready")
@@ -48,12 +50,11 @@ def before_switch(run: Any, state: Any) -> Held | None:
     if verdict is None:
         return Held(SKIPPED, "interrupted while deferred by the readiness gate; nothing restarted")
     if not verdict.ok:
-        return Held(BUSY, f"not ready after {policy.max_wait:g}s (ready.max_wait): {verdict.reason}; "
-                          "images pulled, nothing restarted")
-    return _window_closed(run)     # the wait may have outlasted the window
+        return Held(BUSY, f"not ready after {policy.max_wait:g}s (ready.max_wait): {verdict.reason}; {kept}")
+    return _window_closed(run, kept)     # the wait may have outlasted the window
 
 
-def _window_closed(run: Any) -> Held | None:
+def _window_closed(run: Any, kept: str) -> Held | None:
     win = ready.host_setting(run.spec, run.host, "window")
     if win is None:
         return None
@@ -62,8 +63,8 @@ def _window_closed(run: Any) -> Held | None:
     if opens <= now:
         return None
     stamp = opens.isoformat(timespec="seconds")
-    return Held(WAITING_WINDOW, f"outside its maintenance window ({win.describe()}): opens {stamp}; "
-                                "images pulled, nothing restarted", opens=stamp)
+    return Held(WAITING_WINDOW, f"outside its maintenance window ({win.describe()}): opens {stamp}; {kept}",
+                opens=stamp)
 
 
 def app_locks(ctx: Any, host: Any) -> tuple[dict, ...]:

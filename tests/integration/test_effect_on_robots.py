@@ -6,6 +6,7 @@ with the right privileges, and log rotation that runs without rosdeploy.
 from __future__ import annotations
 
 import time
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import pytest
@@ -230,8 +231,9 @@ def test_a_rollback_restores_the_previous_rotation_schedule(fleet, tmp_path: Pat
     assert shell.run(f"ls {CRON} {CONF} 2>/dev/null || true") == "", "rotate_every: off removes the schedule"
 
 
-def test_a_no_op_apply_puts_back_host_changes_edited_on_the_robot_and_status_shows_them(fleet, tmp_path: Path,
-                                                                                        ) -> None:
+def test_a_no_op_apply_puts_back_host_changes_edited_on_the_robot_and_status_shows_them(
+        fleet, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("ROSDEPLOY_PENDING_DIR", str(tmp_path / "pending"))    # the waiting-window record
     fleet_file = _rotation_fleet(fleet, tmp_path)     # robot2 reaches root through sudo -n
     assert deploy(fleet_file, "--limit", "robot2").code == EXIT_OK
     shell = RobotShell(fleet, "robot2")
@@ -246,6 +248,14 @@ def test_a_no_op_apply_puts_back_host_changes_edited_on_the_robot_and_status_sho
 
     left = deploy(fleet_file, "--limit", "robot2", "--no-host-changes")
     assert left.host("robot2")["outcome"] == "unchanged" and "edited by hand" in shell.run(f"cat {CRON}")
+    opens = datetime.now(timezone.utc) + timedelta(hours=2)     # a udevadm trigger waits for the window too
+    closed = deploy(_rotation_fleet(fleet, tmp_path, window={"start": opens.strftime("%H:%M"), "duration": "1h"}),
+                    "--limit", "robot2")
+    waiting = closed.host("robot2")
+    assert closed.code == EXIT_PARTIAL and waiting["outcome"] == "waiting-window", waiting
+    assert all(w in waiting["reason"] for w in ("maintenance window", CRON, RULES, "put back then")), waiting
+    assert "edited by hand" in shell.run(f"cat {CRON}") and _ids(shell) == before
+    fleet_file = _rotation_fleet(fleet, tmp_path)
     fixed = deploy(fleet_file, "--limit", "robot2")
     result = fixed.host("robot2")
     assert fixed.code == EXIT_OK and result["outcome"] == "unchanged", result
