@@ -688,8 +688,7 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     target = rollback_target(state, to_version, to_release)
     base = {"old_release": state.current, "new_release": target, "running_release": state.current}
     if holder is not None:
-        return run.result(LOCKED, reason=f"locked by {describe(holder)} (use --break-lock if it is stale)",
-                          **base)
+        return run.result(LOCKED, reason=_locked_by(holder), **base)
     if target is None:
         kept = ", ".join(state.releases) or "none"
         what = f"no kept release of version {to_version}" if to_version else "no previous release"

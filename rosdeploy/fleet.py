@@ -49,6 +49,7 @@ REPOSITORY_RE = re.compile(rf"{_COMPONENT}(?:/{_COMPONENT})*")
 _DURATION_PART = re.compile(r"([0-9]+(?:\.[0-9]+)?)(ms|h|m|s)")   # ASCII digits only: int("²") fails
 _SIZE_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)([kmg])b?", re.IGNORECASE)
 _UNITS = {"ms": 0.001, "s": 1, "m": 60, "h": 3600}
+MAX_DURATION = 366 * 24 * 3600.0      # a year: no wait, deadline or window is longer
 _SECRET_ENV_REF = re.compile(r"\$\{?ROSDEPLOY_VAULT_PASSWORD")
 _CONTROL = {"\n": "a newline", "\r": "a carriage return", "\0": "a NUL byte"}
 
@@ -75,11 +76,12 @@ Convert = Callable[["Reader", KeyPath, Any], Any]
 # ------------------------------------------------------------------ values
 
 def parse_duration(value: Any) -> float:
-    """`90`, `90s`, `2m`, `1m30s`, `500ms` -> seconds. ValueError when it is none of those."""
+    """`90`, `90s`, `2m`, `1m30s`, `500ms` -> seconds. ValueError when it is none of those, or
+    longer than MAX_DURATION: a wait of 1e23 s (or `.inf`, `.nan`) overflows every timer it reaches."""
     if isinstance(value, bool) or value is None:
         raise ValueError(value)
     if isinstance(value, (int, float)):
-        seconds = float(value)
+        seconds = float(value) if abs(value) <= MAX_DURATION else math.inf
     else:
         text = str(value).strip()
         if re.fullmatch(r"[0-9]+(\.[0-9]+)?", text):
@@ -88,7 +90,7 @@ def parse_duration(value: Any) -> float:
         if not parts or "".join(n + u for n, u in parts) != text:
             raise ValueError(value)
         seconds = sum(float(n) * _UNITS[u] for n, u in parts)
-    if seconds < 0:
+    if not 0 <= seconds <= MAX_DURATION:    # NaN fails this too
         raise ValueError(value)
     return seconds
 
@@ -346,7 +348,8 @@ def _duration(r: Reader, kp: KeyPath, value: Any) -> Any:
     try:
         return parse_duration(value)
     except ValueError:
-        raise Invalid(f"must be a duration like 90, 90s, 2m or 1m30s; got {_kind(value)}") from None
+        raise Invalid(f"must be a duration like 90, 90s, 2m or 1m30s, at most 8784h (a year); "
+                      f"got {_kind(value)}") from None
 
 
 def _size(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -496,19 +499,31 @@ def _topic(r: Reader, kp: KeyPath, value: Any) -> Any:
     return Topic(name=d["name"], min_rate=d.get("min_rate"))
 
 
-def _wave(r: Reader, kp: KeyPath, value: Any) -> Any:
-    """A robot count (1, 5) or a share of the targets ("10%")."""
-    if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
+WAVE_HINT = 'a robot count (1, 5) or a percentage of the targets ("10%")'
+
+
+def wave_target(value: Any, least: int = 1) -> int | str:
+    """A robot count of at least `least` (1, 5) or a share of the targets ("10%"); ValueError
+    otherwise. Shared by the fleet file's rollout keys and apply's --waves and --max-fail."""
+    if isinstance(value, int) and not isinstance(value, bool) and value >= least:
         return value
     if isinstance(value, str) and re.fullmatch(r"[0-9]{1,3}%", value) and 0 < int(value[:-1]) <= 100:
         return value
-    raise Invalid(f'must be a robot count (1, 5) or a percentage of the targets ("10%"); got {_kind(value)}')
+    raise ValueError(value)
+
+
+def _wave(r: Reader, kp: KeyPath, value: Any) -> Any:
+    try:
+        return wave_target(value)
+    except ValueError:
+        raise Invalid(f"must be {WAVE_HINT}; got {_kind(value)}") from None
 
 
 def _max_fail(r: Reader, kp: KeyPath, value: Any) -> Any:
-    if isinstance(value, int) and not isinstance(value, bool) and value == 0:
-        return 0
-    return _wave(r, kp, value)
+    try:
+        return wave_target(value, least=0)
+    except ValueError:
+        raise Invalid(f"must be 0 or {WAVE_HINT}; got {_kind(value)}") from None
 
 
 def _restart(r: Reader, kp: KeyPath, value: Any) -> Any:

@@ -24,7 +24,10 @@ class Output:
         self.as_json = as_json
         self.color_out = use_color(self.stdout, color)
         self.color_err = use_color(self.stderr, color)
-        self.interactive = _isatty(self.stdout) and not as_json
+        self.interactive = _isatty(self.stdout) and not as_json     # live progress, tables for people
+        # A question needs a person at the keyboard, not a terminal on stdout: `apply F | tee log`
+        # and `--json apply F > out.json`, typed at a terminal, ask on stderr.
+        self.can_ask = _isatty(sys.stdin)
         self.documented = False          # the one JSON document of this run was written
         self._secrets: set[str] = set()
         self._lock = threading.Lock()   # progress lines come from many robot threads
@@ -134,9 +137,11 @@ def use_color(stream: TextIO, mode: bool | str | None = "auto") -> bool:
 
 
 def confirm(out: Output, question: str) -> bool:
-    """Ask on the terminal; never called without one (callers check out.interactive)."""
-    out.stdout.write(f"{question} [y/N] ")
-    out.stdout.flush()
+    """Ask at the keyboard; never called without one (callers check out.can_ask). The question
+    goes to stdout when people read it, else to stderr, out of the way of a piped report."""
+    stream = out.stdout if out.interactive else out.stderr
+    stream.write(f"{question} [y/N] ")
+    stream.flush()
     try:
         return input().strip().lower() in ("y", "yes")
     except EOFError:

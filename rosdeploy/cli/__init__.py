@@ -27,8 +27,7 @@ def build_parser() -> Parser:
         description="Declarative deployment of ROS 2 software to robot fleets.",
         epilog="exit codes:\n" + "\n".join(f"  {code:>3}  {text}" for code, text in EXIT_CODES.items())
                + "\n\n`rosdeploy COMMAND --help` shows a command's options, exit codes and an example.")
-    parser.add_argument("-V", "--version", action="version", version=f"rosdeploy {__version__}",
-                        help="print rosdeploy's version and exit")
+    parser.add_argument("-V", "--version", action=_ShowVersion, help="print rosdeploy's version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module in (offline, remote, sim, vault, images, completion):
         module.register(sub)
@@ -36,6 +35,22 @@ def build_parser() -> Parser:
                           (EXIT_OK, EXIT_INPUT), "rosdeploy version")
     version.set_defaults(func=cmd_version)
     return parser
+
+
+class _ShowVersion(argparse.Action):
+    """`rosdeploy --version`: answered by main() as `rosdeploy version` is, so `--json` holds for it
+    too (argparse's own version action prints plain text and exits)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        raise VersionAsked
+
+
+class VersionAsked(Exception):
+    pass
 
 
 def cmd_version(args: argparse.Namespace, out: Output) -> int:
@@ -50,9 +65,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         args = build_parser().parse_args(argv)
+    except VersionAsked:
+        return cmd_version(argparse.Namespace(), Output(as_json=_given(argv, "--json") is not None))
     except UsageError as exc:
         # The options were not parsed: read the two that shape the error's form from argv.
-        out = Output(as_json="--json" in argv, color=_color_word(argv))
+        out = Output(as_json=_given(argv, "--json") is not None, color=_given(argv, "--color") or "auto")
         if not out.as_json:
             out.note(exc.usage.rstrip())
         return _fail(out, exc)
@@ -65,15 +82,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:
         if args.debug and not isinstance(exc, RosdeployError):
             traceback.print_exc()
-        return _fail(out, exc)
+        return _fail(out, exc, args.debug)
     except KeyboardInterrupt as exc:
         return _fail(out, exc)
 
 
-def _fail(out: Output, exc: BaseException) -> int:
+def _fail(out: Output, exc: BaseException, debug: bool = False) -> int:
     """Report a failure on stderr and, with --json, as the run's one document on stdout."""
     code, kind, problems = _classify(exc)
-    lines = [_text(p) for p in problems] or [_message(exc)]
+    lines = [_text(p) for p in problems] or [_message(exc, debug)]
     for line in lines:
         out.error(f"error: {line}" if kind in ("usage", "input", "error") else line)
     if out.as_json and not out.documented:
@@ -95,14 +112,15 @@ def _classify(exc: BaseException) -> tuple[int, str, tuple[Problem, ...]]:
     return EXIT_INTERNAL, "internal", ()
 
 
-def _message(exc: BaseException) -> str:
+def _message(exc: BaseException, debug: bool = False) -> str:
     if isinstance(exc, KeyboardInterrupt):
         return "interrupted"
     if isinstance(exc, UsageError):
         return exc.message
     if isinstance(exc, RosdeployError):
         return str(exc)
-    return f"internal error: {exc!r} (run with --debug for the traceback)"
+    return f"internal error: {exc!r} " + ("(the traceback is above)" if debug else
+                                          "(run with --debug for the traceback)")
 
 
 def _text(p: Problem) -> str:
@@ -117,10 +135,16 @@ def _problem_json(p: Problem) -> dict[str, Any]:
     return problem_json(p)
 
 
-def _color_word(argv: Sequence[str]) -> str:
+def _given(argv: Sequence[str], flag: str) -> str | None:
+    """A global option as argparse would have read it, for an error raised before it could:
+    abbreviations (`--js`) and `--color=never` count, words after `--` do not. Its value ("" for
+    a flag without one), or None when absent."""
     for i, word in enumerate(argv):
-        if word.startswith("--color="):
-            return word.split("=", 1)[1]
-        if word == "--color" and i + 1 < len(argv):
-            return argv[i + 1]
-    return "auto"
+        if word == "--":
+            return None
+        name, eq, value = word.partition("=")
+        if len(name) >= 3 and flag.startswith(name) and name.startswith("--"):
+            if eq or flag != "--color":
+                return value
+            return argv[i + 1] if i + 1 < len(argv) else ""
+    return None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 from typing import TYPE_CHECKING, Any, NoReturn, Sequence
 
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
@@ -23,8 +24,12 @@ EXIT_CODES: dict[int, str] = {
     EXIT_PARTIAL: "some robots failed, were rolled back, locked or unreachable (within max_fail)",
     EXIT_ABORTED: "a wave exceeded max_fail: the rollout stopped, later waves skipped",
     EXIT_DECLINED: "declined at the confirmation prompt: nothing was done",
-    EXIT_INTERRUPTED: "interrupted (Ctrl-C): robots mid-deploy finished or rolled back, locks released",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C)",
 }
+# What apply and rollback do with Ctrl-C before they exit
+INTERRUPTED_RUN = "interrupted (Ctrl-C): robots mid-deploy finished or rolled back, locks released"
+# Any command can be given a wrong word, hit a bug, or be interrupted
+ALWAYS = (EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED)
 
 
 class UsageError(InputError):
@@ -58,14 +63,28 @@ class Parser(argparse.ArgumentParser):
                                 "always or never")
 
     def error(self, message: str) -> NoReturn:
+        choice = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if choice:    # `rosdeploy aply`: the command meant, as the fleet file's keys get
+            from rosdeploy.suggest import did_you_mean
+            hint = did_you_mean(choice[1], re.findall(r"'([^']*)'", choice[2]))
+            message += f"; {hint}" if hint else ""
         raise UsageError(self, message)
+
+    def parse_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> Any:  # type: ignore[override]
+        """argparse blames words no command took on the root parser (`rosdeploy: unrecognized
+        arguments`): blame the command they were given to, whose --help lists what it takes."""
+        parsed, extra = self.parse_known_args(args, namespace)
+        if extra:
+            owner: Parser = getattr(parsed, "command_parser", self)
+            owner.error(f"unrecognized arguments: {' '.join(extra)}")
+        return parsed
 
 
 def epilog(codes: Sequence[int], example: str, meanings: dict[int, str] | None = None) -> str:
     """The exit codes this command can return (from EXIT_CODES, or a command's own meaning of one)
     and an example, below its options in --help."""
     meanings = {**EXIT_CODES, **(meanings or {})}
-    rows = "\n".join(f"  {code:>3}  {meanings[code]}" for code in sorted(codes))
+    rows = "\n".join(f"  {code:>3}  {meanings[code]}" for code in sorted({*codes, *ALWAYS}))
     return f"exit codes:\n{rows}\n\nexample:\n  {example}"
 
 
@@ -74,6 +93,7 @@ def add_command(sub: argparse._SubParsersAction, name: str, summary: str, descri
     """A subcommand with its one-line summary, its description, and its exit codes and example."""
     parser: Parser = sub.add_parser(name, help=summary, description=description,
                                     epilog=epilog(codes, example, meanings))
+    parser.set_defaults(command_parser=parser)     # the innermost command's wins (Parser.parse_args)
     return parser
 
 
@@ -85,7 +105,28 @@ def duration(text: str) -> float:
         return parse_duration(text)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"invalid duration {text!r}: use seconds or a duration like 30s, 2m, 1m30s, 500ms") from None
+            f"invalid duration {text!r}: use seconds or a duration like 30s, 2m, 1m30s, 500ms, "
+            "at most 8784h (a year)") from None
+
+
+def waves(text: str) -> tuple[int | str, ...]:
+    """`--waves 1,10%,100%`: the fleet file's rollout.waves, one target per comma."""
+    from rosdeploy.fleet import WAVE_HINT
+    return tuple(_wave_word(word, 1, f"each wave must be {WAVE_HINT}") for word in text.replace(" ", "").split(","))
+
+
+def fail_limit(text: str) -> int | str:
+    """`--max-fail 2` or `--max-fail 10%`: the fleet file's rollout.max_fail."""
+    from rosdeploy.fleet import WAVE_HINT
+    return _wave_word(text.strip(), 0, f"must be 0 or {WAVE_HINT}")
+
+
+def _wave_word(word: str, least: int, hint: str) -> int | str:
+    from rosdeploy.fleet import wave_target
+    try:
+        return wave_target(int(word) if re.fullmatch(r"[0-9]{1,9}", word) else word, least)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{word!r}: {hint}") from None
 
 
 def positive_int(text: str) -> int:
@@ -101,6 +142,8 @@ def positive_int(text: str) -> int:
 def path_arg(text: str) -> str:
     """A path from the command line: `~` and `~user` expanded here, where an unknown user or a
     NUL byte can still be an argument error instead of a crash deep in a file open."""
+    if not text:     # `-i ""` (an unset shell variable): no path at all, not "the default"
+        raise argparse.ArgumentTypeError("an empty path: name a file or directory")
     if "\0" in text:
         raise argparse.ArgumentTypeError(f"{text!r} holds a NUL byte: no path can")
     expanded = os.path.expanduser(text)

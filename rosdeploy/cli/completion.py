@@ -16,9 +16,12 @@ from rosdeploy.output import Output
 
 SHELLS = ("bash", "zsh", "fish")
 INSTALL = {
-    "bash": "rosdeploy completion bash > ~/.local/share/bash-completion/completions/rosdeploy",
-    "zsh": "rosdeploy completion zsh > ~/.zfunc/_rosdeploy   # with fpath+=(~/.zfunc) before compinit",
-    "fish": "rosdeploy completion fish > ~/.config/fish/completions/rosdeploy.fish",
+    "bash": "mkdir -p ~/.local/share/bash-completion/completions && "
+            "rosdeploy completion bash > ~/.local/share/bash-completion/completions/rosdeploy",
+    "zsh": "mkdir -p ~/.zfunc && rosdeploy completion zsh > ~/.zfunc/_rosdeploy   "
+           "# with fpath+=(~/.zfunc) before compinit",
+    "fish": "mkdir -p ~/.config/fish/completions && "
+            "rosdeploy completion fish > ~/.config/fish/completions/rosdeploy.fish",
 }
 
 
@@ -26,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = add_command(sub, "completion", "print a shell completion script (bash, zsh, fish)",
                     "Print the completion script for SHELL, generated from rosdeploy's own options. Install "
                     "it once:\n  " + "\n  ".join(INSTALL.values()),
-                    (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL), INSTALL["bash"])
+                    (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL), INSTALL["bash"].split("&& ", 1)[1])
     p.add_argument("shell", choices=SHELLS, metavar="SHELL", help="bash, zsh or fish")
     p.set_defaults(func=cmd_completion)
 
@@ -68,6 +71,9 @@ def _fish_parser(prog: str, parser: argparse.ArgumentParser, path: tuple[str, ..
                 yield from _fish_parser(prog, child, path + (name,))
         elif action.option_strings:
             yield _fish_option(prog, action, path)
+        elif action.choices:     # a positional with its words (`completion SHELL`, `sim busy ROBOT on|off`)
+            cond = _seen(path) or ["__fish_use_subcommand"]
+            yield f"complete -c {prog} -f -n {_q(cond)} -a {shlex.quote(' '.join(map(str, action.choices)))}"
 
 
 def _fish_option(prog: str, action: argparse.Action, path: tuple[str, ...]) -> str:

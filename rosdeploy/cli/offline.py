@@ -53,7 +53,7 @@ def _load(args: argparse.Namespace, out: Output) -> tuple[Any, tuple[Host, ...]]
     from rosdeploy.project import load_project
 
     project = load_project(args.fleet, inventory=args.inventory, version=args.release_version,
-                           vault=vault_from_args(args, getpass.getpass if out.interactive else None))
+                           vault=vault_from_args(args, getpass.getpass if out.can_ask else None))
     out.mask(project.secret_values)
     return project, inventory_targets(project, args.limit, out)
 

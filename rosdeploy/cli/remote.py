@@ -12,7 +12,8 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from rosdeploy.cli import images
-from rosdeploy.cli.common import Parser, add_command, add_fleet_args, duration, inventory_targets, positive_int
+from rosdeploy.cli.common import (INTERRUPTED_RUN, Parser, add_command, add_fleet_args, duration, fail_limit,
+                                  inventory_targets, positive_int, waves)
 from rosdeploy.cli.vault import vault_from_args
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
                               EXIT_PARTIAL, InputError)
@@ -35,13 +36,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "old release runs, upload, start, health gate (containers, restarts, ROS topics and rates), "
                     "activate, or roll back to the previous release. Asks before it starts unless --yes.",
                     RUN_CODES, "rosdeploy apply playbooks/demo.yml --limit robot2 --version 1.1.0 --yes",
-                    {EXIT_OK: "every targeted robot runs the release, healthy"})
+                    {EXIT_OK: "every targeted robot runs the release, healthy", EXIT_INTERRUPTED: INTERRUPTED_RUN})
     add_fleet_args(p)
     _add_run_args(p)
     p.add_argument("--forks", type=positive_int, metavar="N", help="robots deployed in parallel within a wave")
-    p.add_argument("--waves", metavar="LIST",
+    p.add_argument("--waves", type=waves, metavar="LIST",
                    help='comma-separated cumulative wave targets, e.g. "1,10%%,50%%,100%%"')
-    p.add_argument("--max-fail", metavar="LIMIT",
+    p.add_argument("--max-fail", type=fail_limit, metavar="LIMIT",
                    help="failures tolerated per wave before the rollout stops: a count, or a percent like 10%%")
     p.add_argument("--order-by", metavar="PREFIX", help="inventory group prefix to order robots by, e.g. site_")
     p.add_argument("--pause", type=duration, metavar="DURATION",
@@ -78,7 +79,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "the robot: no render, no registry. Asks before it starts unless --yes.",
                     RUN_CODES[:2] + RUN_CODES[3:], "rosdeploy rollback playbooks/demo.yml --yes",
                     {EXIT_OK: "every targeted robot runs the release rolled back to, healthy",
-                     EXIT_PARTIAL: "the rollback failed on some robot"})
+                     EXIT_PARTIAL: "the rollback failed on some robot", EXIT_INTERRUPTED: INTERRUPTED_RUN})
     add_fleet_args(p, version=False)
     _add_run_args(p)
     p.add_argument("--to", metavar="VERSION", help="a kept version to switch to instead of the previous one")
@@ -125,7 +126,7 @@ def load(args: argparse.Namespace, out: Output, render: bool = True,
     from rosdeploy.project import deployable, load_project
 
     project = load_project(args.fleet, inventory=args.inventory, version=getattr(args, "release_version", None),
-                           vault=vault_from_args(args, getpass.getpass if out.interactive else None))
+                           vault=vault_from_args(args, getpass.getpass if out.can_ask else None))
     hosts = inventory_targets(project, args.limit, out)
     if getattr(args, "pick_up", False):     # apply: robots still pending for this fleet file and version
         from rosdeploy.cli import pending as pending_cli
@@ -192,7 +193,7 @@ def host_change_args(args: argparse.Namespace, out: Output) -> None:
                  "on any robot; the /dev/robot/* names may be missing or stale, and the logs rotate on the old "
                  "schedule or not at all")
     if getattr(args, "ask_become_pass", False):
-        if not out.interactive:
+        if not out.can_ask:
             raise InputError("--ask-become-pass needs a terminal to ask on; put ansible_become_password in a vault")
         args.become_password = getpass.getpass("BECOME password: ")
 
@@ -200,7 +201,7 @@ def host_change_args(args: argparse.Namespace, out: Output) -> None:
 def _confirmed(args: argparse.Namespace, out: Output, question: str) -> bool:
     if args.yes:
         return True
-    if not out.interactive:
+    if not out.can_ask:
         raise InputError(f"{question.rstrip('?')}: refusing without a terminal to confirm; pass --yes")
     return confirm(out, question)
 
@@ -208,6 +209,9 @@ def _confirmed(args: argparse.Namespace, out: Output, question: str) -> bool:
 # ---------------------------------------------------------------- commands
 
 def cmd_apply(args: argparse.Namespace, out: Output) -> int:
+    if args.step and not out.can_ask:    # before any connection: going on unasked is not what --step asked
+        raise InputError("--step asks before every wave after the first: it needs a terminal to ask on "
+                         "(or use --waves and run again for each wave)")
     early = EarlyConnections(args)
     try:
         return _apply(args, out, early)
@@ -245,9 +249,9 @@ def _policy(policy: RolloutPolicy, args: argparse.Namespace) -> RolloutPolicy:
     if args.forks:
         changes["forks"] = args.forks
     if args.waves:
-        changes["waves"] = tuple(w if w.endswith("%") else int(w) for w in args.waves.replace(" ", "").split(","))
-    if args.max_fail:
-        changes["max_fail"] = args.max_fail if args.max_fail.endswith("%") else int(args.max_fail)
+        changes["waves"] = args.waves
+    if args.max_fail is not None:
+        changes["max_fail"] = args.max_fail
     if args.order_by:
         changes["order_by"] = args.order_by
     if args.pause is not None:

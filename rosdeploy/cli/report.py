@@ -163,7 +163,7 @@ def rollout_notifier(out: Output, args: argparse.Namespace,
         if event == "wave":
             out.line(out.paint(f"== wave {data['number']}/{data['of']}: {', '.join(data['hosts'])}", "bold"))
             view.wave(data["number"], data["hosts"])
-            if args.step and data["number"] > 1 and out.interactive:
+            if args.step and data["number"] > 1:     # cmd_apply refused --step where it cannot ask
                 with view.paused():
                     if not confirm(out, "Start this wave?"):
                         raise KeyboardInterrupt

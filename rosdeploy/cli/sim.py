@@ -16,6 +16,7 @@ if TYPE_CHECKING:
 # the others (an emergency rollback among them) need none of it.
 
 SIM_CODES = (EXIT_OK, EXIT_PARTIAL, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED)
+ROBOT_HELP = "a simulated robot's name, as `rosdeploy sim status` lists them (robot1, robot2, ...)"
 SIM_MEANINGS = {EXIT_PARTIAL: "the simulated fleet failed: it could not be brought up or down, or is not running"}
 
 
@@ -54,31 +55,32 @@ def _register_faults(actions: argparse._SubParsersAction) -> None:
     cut = add_command(actions, "cut", "drop a robot's SSH link (the robot keeps running) until `sim heal`",
                       "Every packet to the robot's sshd is dropped, on open connections too, as when a robot "
                       "roams out of Wi-Fi range.", SIM_CODES, "rosdeploy sim cut robot2 --for 2s", SIM_MEANINGS)
-    cut.add_argument("robot", metavar="ROBOT")
+    cut.add_argument("robot", metavar="ROBOT", help=ROBOT_HELP)
     cut.add_argument("--for", dest="seconds", type=duration, default=0.0, metavar="DURATION",
                      help="heal by itself after this long (e.g. 2s: a Wi-Fi blip)")
     cut.set_defaults(func=cmd_fault, fault="cut")
     isolate = add_command(actions, "isolate", "cut a robot off from the registry; its SSH link still works",
                           "Drop the robot's traffic to the registry, so pulls fail while SSH works.",
                           SIM_CODES, "rosdeploy sim isolate robot2 --from registry", SIM_MEANINGS)
-    isolate.add_argument("robot", metavar="ROBOT")
-    isolate.add_argument("--from", dest="target", choices=["registry"], default="registry")
+    isolate.add_argument("robot", metavar="ROBOT", help=ROBOT_HELP)
+    isolate.add_argument("--from", dest="target", choices=["registry"], default="registry", metavar="WHAT",
+                         help="what the robot loses: registry (the only one so far, the default)")
     isolate.set_defaults(func=cmd_fault, fault="isolate")
     heal = add_command(actions, "heal", "undo `sim cut` and `sim isolate` on a robot",
                        "Restore a robot's SSH link and its way to the registry.", SIM_CODES,
                        "rosdeploy sim heal robot2", SIM_MEANINGS)
-    heal.add_argument("robot", metavar="ROBOT")
+    heal.add_argument("robot", metavar="ROBOT", help=ROBOT_HELP)
     heal.set_defaults(func=cmd_fault, fault="heal")
     busy = add_command(actions, "busy", "set the demo driver's /robot_mode to BUSY (on) or IDLE (off)",
                        "Set the demo driver's /robot_mode topic to BUSY (on) or IDLE (off).", SIM_CODES,
                        "rosdeploy sim busy robot2 on", SIM_MEANINGS)
-    busy.add_argument("robot", metavar="ROBOT")
-    busy.add_argument("state", choices=["on", "off"])
+    busy.add_argument("robot", metavar="ROBOT", help=ROBOT_HELP)
+    busy.add_argument("state", choices=["on", "off"], metavar="on|off", help="on: BUSY; off: IDLE again")
     busy.set_defaults(func=cmd_fault, fault="busy")
     reboot = add_command(actions, "reboot", "restart a robot (its engine, sshd and containers) and wait for it",
                          "Restart a robot (its engine, sshd and containers) and wait until it answers again.",
                          SIM_CODES, "rosdeploy sim reboot robot2", SIM_MEANINGS)
-    reboot.add_argument("robot", metavar="ROBOT")
+    reboot.add_argument("robot", metavar="ROBOT", help=ROBOT_HELP)
     reboot.set_defaults(func=cmd_fault, fault="reboot")
 
 

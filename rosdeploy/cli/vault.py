@@ -10,37 +10,45 @@ import subprocess
 import sys
 
 from rosdeploy import vault as vaultlib
-from rosdeploy.cli.common import epilog, path_arg
+from rosdeploy.cli.common import add_command, path_arg
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem, VaultError
 from rosdeploy.output import Output
 
 
 CODES = (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL)   # a wrong password or a damaged file is an input error
-EXAMPLE_FILE = "inventory/group_vars/all/vault.yml"
+EXAMPLE_FILE = "inventory/warehouse/group_vars/warehouse/vault.yml"     # the example fleet's, in the repo
+EXAMPLE_PASSWORD = "inventory/warehouse/.vault-password-example"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    parser = sub.add_parser("vault", help="encrypt, decrypt, view or edit vault files (secrets at rest)",
-                            description="Whole files encrypted with AES-256-GCM; a group_vars/host_vars "
-                                        "file may be one. Ansible's own vault files are read too.",
-                            epilog=epilog(CODES, f"rosdeploy vault view {EXAMPLE_FILE}"))
+    parser = add_command(sub, "vault", "encrypt, decrypt, view or edit vault files (secrets at rest)",
+                         "Whole files encrypted with AES-256-GCM; a group_vars/host_vars file may be one. "
+                         "Ansible's own vault files are read too.", CODES,
+                         f"rosdeploy vault view {EXAMPLE_FILE} --vault-password-file {EXAMPLE_PASSWORD}")
     actions = parser.add_subparsers(dest="vault_action", metavar="ACTION", required=True)
-    for name, handler, many, text in (
-            ("encrypt", _encrypt, True, "encrypt files in place (mode 0600)"),
-            ("decrypt", _decrypt, True, "decrypt files in place (mode 0600)"),
-            ("view", _view, False, "print the plaintext of a vault file"),
-            ("edit", _edit, False, "edit a vault file with $EDITOR (created if missing)")):
-        action = actions.add_parser(name, help=text, description=text,
-                                    epilog=epilog(CODES, f"rosdeploy vault {name} {EXAMPLE_FILE}"))
-        action.add_argument("files", nargs="+" if many else 1, type=path_arg, metavar="FILE")
+    for name, handler, many, text, more in (
+            ("encrypt", _encrypt, True, "encrypt files in place (mode 0600)",
+             "Encrypt each FILE in place with the vault password, mode 0600; an encrypted file is refused."),
+            ("decrypt", _decrypt, True, "decrypt files in place (mode 0600)",
+             "Decrypt each FILE in place, mode 0600: the plaintext is on disk afterwards."),
+            ("view", _view, False, "print the plaintext of a vault file",
+             "Print the plaintext of a vault file on stdout; the file is left as it is."),
+            ("edit", _edit, False, "edit a vault file with $EDITOR (created if missing)",
+             "Decrypt into a private temporary file, run $VISUAL or $EDITOR (else vi) on it, and encrypt the result "
+             "back; a new file is created.")):
+        target = EXAMPLE_FILE if name in ("view", "edit") else "group_vars/all/secrets.yml"
+        action = add_command(actions, name, text, more, CODES,
+                             f"rosdeploy vault {name} {target} --vault-password-file {EXAMPLE_PASSWORD}")
+        action.add_argument("files", nargs="+" if many else 1, type=path_arg, metavar="FILE",
+                            help="vault file" + ("s" if many else "") + ", e.g. a group_vars file")
         add_vault_options(action)
         if name in ("encrypt", "edit"):
             _format_args(action)
         action.set_defaults(func=handler)
-    string = actions.add_parser("encrypt-string", help="print `NAME: !vault |` to paste into a vars file",
-                                description="Encrypt one value (from VALUE, else standard input) as an "
-                                            "inline `!vault` value, like ansible-vault encrypt_string.",
-                                epilog=epilog(CODES, "rosdeploy vault encrypt-string --name fleet_api_token"))
+    string = add_command(actions, "encrypt-string", "print `NAME: !vault |` to paste into a vars file",
+                         "Encrypt one value (from VALUE, else standard input) as an inline `!vault` value, "
+                         "like ansible-vault encrypt_string.", CODES,
+                         "rosdeploy vault encrypt-string --name fleet_api_token")
     string.add_argument("value", nargs="?", metavar="VALUE",
                         help="the secret; omit it to read standard input (keeps it out of shell history)")
     string.add_argument("--name", required=True, metavar="NAME", help="the variable name, e.g. fleet_api_token")

@@ -119,9 +119,28 @@ def test_version(argv: list[str]) -> None:
     assert (done.returncode, done.stdout.strip()) == (0, f"rosdeploy {__version__}")
 
 
-def test_version_json() -> None:
-    done = rosdeploy("version", "--json")
-    assert json.loads(done.stdout) == {"version": __version__}
+@pytest.mark.parametrize("argv", [["version", "--json"], ["--json", "--version"], ["-V", "--json"]])
+def test_version_json(argv: list[str]) -> None:
+    done = rosdeploy(*argv)
+    assert done.returncode == 0 and json.loads(done.stdout) == {"version": __version__}
+
+
+@pytest.mark.parametrize("argv, option", [(["validate", ""], "FLEET"),
+                                          (["validate", "F", "-i", ""], "-i/--inventory")])
+def test_an_empty_path_is_refused_naming_the_argument(argv: list[str], option: str) -> None:
+    with pytest.raises(UsageError, match=f"argument {option}: an empty path"):
+        build_parser().parse_args(argv)
+
+
+def test_an_internal_error_under_debug_points_at_the_traceback(capsys: pytest.CaptureFixture,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    parser = build_parser()      # validate's handler replaced by a bug
+    parser._subparsers._group_actions[0].choices["validate"].set_defaults(func=lambda args, out: 1 / 0)
+    monkeypatch.setattr("rosdeploy.cli.build_parser", lambda: parser)
+    assert main(["validate", "F", "--debug"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "ZeroDivisionError" in err and "(the traceback is above)" in err
+    assert "run with --debug" not in err
 
 
 def test_a_commands_version_option_is_still_the_release_version() -> None:
@@ -138,10 +157,25 @@ def test_pause_and_lock_wait_take_the_fleet_files_durations(text: str, seconds: 
     assert build_parser().parse_args(["rollback", "F", "--lock-wait", text]).lock_wait == seconds
 
 
-@pytest.mark.parametrize("text", ["3x", "-5", "soon", ""])
+@pytest.mark.parametrize("text", ["3x", "-5", "soon", "", "99999999999999999999h", "8785h", "nan", "inf"])
 def test_a_bad_duration_is_a_usage_error_that_says_what_to_write(text: str) -> None:
-    with pytest.raises(UsageError, match=r"--pause: invalid duration .*30s, 2m"):
+    # 1e23 s used to pass here and overflow the timer between waves: an internal error
+    with pytest.raises(UsageError, match=r"--pause: invalid duration .*30s, 2m.*at most 8784h"):
         build_parser().parse_args(["apply", "F", "--pause", text])
+
+
+def test_waves_and_max_fail_take_what_the_fleet_file_takes() -> None:
+    args = build_parser().parse_args(["apply", "F", "--waves", "1, 10%,100%", "--max-fail", "0"])
+    assert (args.waves, args.max_fail) == ((1, "10%", "100%"), 0)
+    assert build_parser().parse_args(["apply", "F", "--max-fail", "25%"]).max_fail == "25%"
+
+
+@pytest.mark.parametrize("option, text", [("--waves", "x"), ("--waves", "1,x"), ("--waves", "0"),
+                                          ("--waves", "200%"), ("--waves", "1,,2"), ("--max-fail", "-1"),
+                                          ("--max-fail", "lots"), ("--max-fail", "0%"), ("--waves", "²")])
+def test_a_bad_wave_or_failure_limit_is_a_usage_error_not_a_crash(option: str, text: str) -> None:
+    with pytest.raises(UsageError, match=rf"argument {option}: .*a robot count \(1, 5\) or a percentage"):
+        build_parser().parse_args(["apply", "F", option, text])
 
 
 # -------------------------------------------------------------------- help
@@ -188,11 +222,13 @@ def test_help_shows_the_exit_codes() -> None:
 
 # ---------------------------------------------------------- declining: exit 5
 
-def answer_on_a_terminal(argv: list[str], answer: str) -> tuple[int, str]:
-    """Run rosdeploy with a terminal as stdin and stdout, answer its question, return (code, text)."""
+def answer_on_a_terminal(argv: list[str], answer: str, piped: bool = False) -> tuple[int, str]:
+    """Run rosdeploy with a terminal as stdin and stdout (`piped`: stdout a pipe, as in `| tee`,
+    and stderr the terminal), answer its question, return (code, text on the terminal + the other)."""
     master, slave = pty.openpty()
+    streams = {"stdout": subprocess.PIPE, "stderr": slave} if piped else {"stdout": slave, "stderr": subprocess.PIPE}
     proc = subprocess.Popen([sys.executable, "-m", "rosdeploy", *argv], cwd=REPO, env=_env(),
-                            stdin=slave, stdout=slave, stderr=subprocess.PIPE, text=True)
+                            stdin=slave, text=True, **streams)
     os.close(slave)
     seen = b""
     deadline = time.monotonic() + 60
@@ -200,9 +236,9 @@ def answer_on_a_terminal(argv: list[str], answer: str) -> tuple[int, str]:
         if select.select([master], [], [], 1)[0]:
             seen += os.read(master, 4096)
     os.write(master, answer.encode() + b"\n")
-    _, err = proc.communicate(timeout=60)
+    out, err = proc.communicate(timeout=60)
     os.close(master)
-    return proc.returncode, seen.decode() + err
+    return proc.returncode, seen.decode() + (out if piped else err)
 
 
 @pytest.mark.parametrize("command", ["apply", "rollback"])
@@ -211,6 +247,16 @@ def test_declining_the_confirmation_exits_5_and_does_nothing(tmp_path: Path, com
     assert "[y/N]" in text
     assert code == EXIT_DECLINED != EXIT_INPUT, text
     assert "declined: nothing was done" in text
+
+
+def test_a_report_piped_to_tee_still_asks_at_the_keyboard_on_stderr(tmp_path: Path) -> None:
+    code, text = answer_on_a_terminal(["apply", *lab_args(tmp_path)], "n", piped=True)
+    assert "[y/N]" in text and code == EXIT_DECLINED, text     # it used to refuse: "without a terminal"
+
+
+def test_step_without_a_keyboard_is_refused_rather_than_not_asking(tmp_path: Path) -> None:
+    done = rosdeploy("apply", *lab_args(tmp_path), "--yes", "--step", stdin=subprocess.DEVNULL)
+    assert done.returncode == EXIT_INPUT and "--step asks before every wave" in done.stderr, done.stderr
 
 
 def test_without_a_terminal_and_without_yes_it_is_an_input_error(tmp_path: Path) -> None:
@@ -226,7 +272,8 @@ def one_document(text: str) -> dict:
 
 
 @pytest.mark.parametrize("argv", [["--json", "status"], ["status", "--json"], ["--json", "bogus"],
-                                  ["apply", "F", "--pause", "3x", "--json"]])
+                                  ["apply", "F", "--pause", "3x", "--json"], ["--js", "validate", "--bogus"],
+                                  ["--json=1", "validate", "F"], ["apply", "F", "--waves", "x", "--json"]])
 def test_json_usage_errors_print_one_document(argv: list[str]) -> None:
     done = rosdeploy(*argv)
     doc = one_document(done.stdout)
@@ -234,6 +281,28 @@ def test_json_usage_errors_print_one_document(argv: list[str]) -> None:
     assert doc["ok"] is False and doc["exit_code"] == EXIT_INPUT and doc["error"]["kind"] == "usage"
     assert doc["error"]["message"] in done.stderr
     assert "usage:" not in done.stdout
+
+
+@pytest.mark.parametrize("argv, blamed", [(["rollback", "F", "--pause", "3s"], "rosdeploy rollback"),
+                                          (["vault", "view", "x", "--bogus"], "rosdeploy vault view"),
+                                          (["sim", "heal", "robot1", "--for", "2s"], "rosdeploy sim heal")])
+def test_a_word_no_command_takes_is_blamed_on_that_command(argv: list[str], blamed: str) -> None:
+    with pytest.raises(UsageError) as caught:
+        build_parser().parse_args(argv)
+    assert caught.value.message.startswith(f"{blamed}: unrecognized arguments: ") and f"`{blamed} --help`" in \
+        caught.value.message and caught.value.usage.startswith(f"usage: {blamed} ")
+
+
+@pytest.mark.parametrize("argv, meant", [(["aply", "F"], "apply"), (["sim", "stauts"], "status"),
+                                         (["vault", "veiw", "x"], "view")])
+def test_a_mistyped_command_gets_a_suggestion(argv: list[str], meant: str) -> None:
+    with pytest.raises(UsageError, match=rf"invalid choice: .*; did you mean '{meant}'\?"):
+        build_parser().parse_args(argv)
+
+
+def test_json_after_double_dash_is_a_word_not_the_option() -> None:
+    done = rosdeploy("validate", "--bogus", "--", "--json")
+    assert done.returncode == EXIT_INPUT and done.stdout == "" and "unrecognized arguments: --bogus" in done.stderr
 
 
 def test_json_input_error_names_the_file(tmp_path: Path) -> None:
@@ -370,6 +439,23 @@ def test_tab_completes_commands_options_and_choices_without_python(tmp_path: Pat
     assert "--lock-wait" in completions(tmp_path, shell, "rosdeploy apply --lock")
     assert "status" in completions(tmp_path, shell, "rosdeploy sim st")
     assert {"auto", "always", "never"} <= set(completions(tmp_path, shell, "rosdeploy apply F --color "))
+    assert {"bash", "zsh", "fish"} == set(completions(tmp_path, shell, "rosdeploy completion "))
+    assert {"on", "off"} == set(completions(tmp_path, shell, "rosdeploy sim busy robot1 "))
+
+
+def test_the_readme_install_lines_work_in_an_empty_home(tmp_path: Path) -> None:
+    readme = (REPO / "README.md").read_text().split("### Shell completion", 1)[1].split("```sh\n", 1)[1]
+    lines = readme.split("```", 1)[0].splitlines()
+    stub = tmp_path / "bin" / "rosdeploy"        # the README's `rosdeploy`, this checkout's
+    stub.parent.mkdir()
+    stub.write_text(f'#!/bin/sh\nPYTHONPATH={REPO} exec {sys.executable} -m rosdeploy "$@"\n')
+    stub.chmod(0o755)
+    env = {"HOME": str(tmp_path / "home"), "PATH": f"{stub.parent}:/usr/bin:/bin"}
+    (tmp_path / "home").mkdir()
+    for line in lines:
+        done = subprocess.run(["sh", "-c", line], capture_output=True, text=True, timeout=60, env=env)
+        assert done.returncode == 0, (line, done.stderr)
+    assert len(list((tmp_path / "home").rglob("*rosdeploy*"))) == 3
 
 
 # ------------------------------------------------------- start-up imports
@@ -461,8 +547,9 @@ def test_a_simulator_failure_exits_3_with_its_error(capsys: pytest.CaptureFixtur
 
 def test_every_rosdeploy_command_in_the_readme_parses() -> None:
     text = (REPO / "README.md").read_text()
-    commands = [line.split("#")[0].strip() for block in re.findall(r"```(?:sh|bash|console)?\n(.*?)```", text, re.S)
-                for line in block.splitlines() if line.strip().startswith("rosdeploy ")]
+    lines = [line.split("#")[0].split("&& ")[-1].strip()     # `mkdir -p D && rosdeploy ...`: the latter
+             for block in re.findall(r"```(?:sh|bash|console)?\n(.*?)```", text, re.S) for line in block.splitlines()]
+    commands = [line for line in lines if line.startswith("rosdeploy ")]
     assert len(commands) >= 10
     for command in commands:
         words = shlex.split(command.split(">")[0].split("|")[0])

@@ -221,6 +221,8 @@ def test_inventory_expands_home_and_variables(fleet_dir: Path, monkeypatch: pyte
     ({"rollout": {"forks": 0}}, "rollout.forks", [">= 1"]),
     ({"rollout": {"order_by": "site north"}}, "rollout.order_by", ["not a valid group prefix"]),
     ({"rollout": {"pause": "a while"}}, "rollout.pause", ["duration"]),
+    ({"rollout": {"pause": 10**400}}, "rollout.pause", ["at most 8784h"]),     # was an OverflowError
+    ({"health": {"timeout": float("nan")}}, "health.timeout", ["at most 8784h"]),
     ({"rollback": {"keep_releases": 1}}, "rollback.keep_releases", [">= 2"]),
     ({"rollback": {"auto": "yes"}}, "rollback.auto", ["true or false"]),
     ({"vars": {"bad-name": 1}}, "vars.bad-name", ["not a valid template variable name"]),
@@ -420,7 +422,8 @@ def test_durations(text: Any, seconds: float) -> None:
     assert parse_duration(text) == seconds
 
 
-@pytest.mark.parametrize("text", ["", "s", "5x", "-1", -1, "1 m", True, None, "1m-5s"])
+@pytest.mark.parametrize("text", ["", "s", "5x", "-1", -1, "1 m", True, None, "1m-5s", float("nan"), float("inf"),
+                                  10**400, "99999999999999999999h", "8785h"])
 def test_bad_durations(text: Any) -> None:
     with pytest.raises(ValueError):
         parse_duration(text)

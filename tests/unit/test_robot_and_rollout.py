@@ -317,6 +317,16 @@ def test_a_lock_of_a_live_run_or_another_machine_is_left_alone(monkeypatch) -> N
         assert robot.calls == [""]
 
 
+def test_a_held_lock_is_reported_as_who_holds_it_not_as_its_json(monkeypatch) -> None:
+    from rosdeploy.deploy import _locked_by
+    holder = {"run": "run-old", "by": "ops@laptop", "pid": 4242, "boot": "b9", "pid_namespace": "ns1",
+              "since": "2026-11-23T10:00:00+00:00"}
+    _, held_by, _ = _lock_with(holder, alive=True, monkeypatch=monkeypatch)
+    reason = _locked_by(held_by)
+    assert reason.startswith("locked by ops@laptop (run run-old, pid 4242, since 2026-11-23T10:00:00") and \
+        "{" not in reason and "--break-lock" in reason, reason
+
+
 @pytest.mark.parametrize("history,flavor", [
     ([{**active("1.1.0-bbb"), "compose": "v1"}, {**active("1.0.0-aaa"), "compose": "v1"},
       {**active("1.1.0-bbb"), "compose": "v2"}], "v2"),           # the last start of the current release
