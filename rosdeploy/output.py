@@ -67,7 +67,10 @@ class Output:
 
     def document(self, data: Any) -> None:
         """The one JSON document of a --json run."""
-        self._write(self.stdout, json.dumps(data, indent=2, sort_keys=True, default=str))
+        text = json.dumps(data, indent=2, sort_keys=True, default=str)
+        if "\\udc" in text:    # a non-UTF-8 byte from argv or a file name: a lone surrogate, not Unicode
+            text = json.dumps(_unicode(data), indent=2, sort_keys=True, default=str)
+        self._write(self.stdout, text)
         self.documented = True
 
     def table(self, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
@@ -110,6 +113,22 @@ class Output:
 
 
 _STYLES = {"red": "31", "green": "32", "yellow": "33", "bold": "1", "dim": "2"}
+
+
+def _unicode(data: Any) -> Any:
+    """`data` with each undecodable byte (Python's surrogate escape) as U+FFFD, which every JSON
+    reader takes; a lone surrogate is valid JSON text but not a character."""
+    if isinstance(data, str):
+        try:
+            raw = data.encode("utf-8", "surrogateescape")
+        except UnicodeEncodeError:    # a surrogate no byte was escaped to
+            raw = data.encode("utf-8", "surrogatepass")
+        return raw.decode("utf-8", "replace")
+    if isinstance(data, dict):
+        return {_unicode(k): _unicode(v) for k, v in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [_unicode(v) for v in data]
+    return data
 
 
 def _paint(text: str, style: str, color: bool) -> str:

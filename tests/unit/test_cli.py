@@ -7,6 +7,7 @@ Where the real process matters (a terminal, the environment, sys.modules) the te
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import pty
@@ -298,6 +299,14 @@ def test_a_word_no_command_takes_is_blamed_on_that_command(argv: list[str], blam
 def test_a_mistyped_command_gets_a_suggestion(argv: list[str], meant: str) -> None:
     with pytest.raises(UsageError, match=rf"invalid choice: .*; did you mean '{meant}'\?"):
         build_parser().parse_args(argv)
+
+
+def test_a_non_utf8_argument_reaches_the_json_as_a_replacement_character() -> None:
+    done = rosdeploy("--json", "validate", "/nonexistent/x\udcff.yml")     # the argv byte 0xff
+    assert "\\udcff" not in done.stdout and "x\ufffd.yml" in json.loads(done.stdout)["error"]["message"]
+    stream = io.StringIO()
+    Output(stdout=stream, as_json=True).document({"name": "x\udcff", "ok": "robot \U0001F600"})
+    assert json.loads(stream.getvalue()) == {"name": "x\ufffd", "ok": "robot \U0001F600"}, "a real pair stays"
 
 
 def test_json_after_double_dash_is_a_word_not_the_option() -> None:
