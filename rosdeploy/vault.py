@@ -341,7 +341,8 @@ class Vault:
                 raise _error(needed_by, f"--vault-id {vault_id.label}@prompt needs a terminal: give a password "
                                         "file instead")
             return typed.encode(), f"--vault-id {vault_id.label}@prompt"
-        return read_password_file(vault_id.source), f"--vault-id {vault_id.label}@{vault_id.source}"
+        given = f"--vault-id {vault_id.label}@{vault_id.source}"
+        return read_password_file(vault_id.source, given), given
 
     def _find_password(self, needed_by: str) -> tuple[bytes, str]:
         if self._given is not None:
@@ -387,12 +388,13 @@ def holds_ansible_vaults(path: str, max_files: int = 2000) -> bool:
     return False
 
 
-def read_password_file(path: str) -> bytes:
-    """A password file's content; an executable file is run and its stdout used (like Ansible)."""
+def read_password_file(path: str, given: str = "") -> bytes:
+    """A password file's content; an executable file is run and its stdout used (like Ansible).
+    `given`: where the path came from, for the message (default: the option or the variable)."""
     path = os.path.expanduser(path)
     if not os.path.isfile(path):
-        raise _error(path, "vault password file not found: check --vault-password-file / "
-                           f"{ENV_PASSWORD_FILE}")
+        raise _error(path, f"vault password file not found: check "
+                           f"{given or f'--vault-password-file / {ENV_PASSWORD_FILE}'}")
     raw = _run_password_script(path) if os.access(path, os.X_OK) else _read_file(path)
     # Ansible strips surrounding whitespace too, so one password file serves both tools.
     password = raw.strip()

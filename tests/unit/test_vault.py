@@ -357,6 +357,13 @@ def test_vault_id_forms_and_bad_ones():
         vaultlib.VaultId.parse("prod@")
 
 
+def test_a_missing_vault_id_file_names_the_vault_id_not_another_option(tmp_path):
+    vault = Vault(ids=[vaultlib.VaultId.parse(f"prod@{tmp_path / 'gone'}")])
+    with pytest.raises(VaultError, match=r"not found: check --vault-id prod@.*gone") as caught:
+        vault.decrypt(ansible_encrypt(b"y: 1\n", b"pw", "prod"), "d.yml")
+    assert "--vault-password-file" not in str(caught.value)
+
+
 def test_cli_format_ansible_and_the_encrypting_vault_id(tmp_path):
     pw = password_files(tmp_path, dev="dev-pass", prod="prod-pass")
     path = tmp_path / "secret.yml"
