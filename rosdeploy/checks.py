@@ -483,10 +483,35 @@ def _log_rotation(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
       "Map the devices with `devices:` instead; if it must be privileged, add `allow_privileged: true`.")
 def _privileged(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
     declared = ctx.service(name)
-    if svc.get("privileged") is True and not (declared and declared.allow_privileged):
-        yield ("services", name, "privileged"), (
-            f"service {name} runs privileged: it can do anything to the robot; map devices with `devices:` "
+    if declared and declared.allow_privileged:
+        return
+    for key, what in _privileges(svc):
+        yield ("services", name, key), (
+            f"service {name} {what}: it can do anything to the robot; map devices with `devices:` "
             "instead (their groups are added for you), or set `allow_privileged: true` to say it is on purpose")
+
+
+# Capabilities that are root on the host in all but name (mount, load modules, raw I/O, read any file)
+_ROOT_CAPS = frozenset({"ALL", "SYS_ADMIN", "SYS_MODULE", "SYS_RAWIO", "SYS_PTRACE", "DAC_READ_SEARCH", "SYS_BOOT"})
+
+
+def _privileges(svc: dict) -> Iterator[tuple[str, str]]:
+    """(compose key, what it grants) for each way a service config is privileged: `privileged:`
+    itself and the keys that amount to it piece by piece."""
+    if svc.get("privileged") is True:
+        yield "privileged", "runs privileged"
+    for key in ("pid", "userns_mode"):
+        if svc.get(key) == "host":
+            yield key, f"shares the robot's {'processes' if key == 'pid' else 'user namespace'} ({key}: host)"
+    caps = sorted({str(c).upper().removeprefix("CAP_") for c in _as_list(svc.get("cap_add"))} & _ROOT_CAPS)
+    if caps:
+        yield "cap_add", f"adds {', '.join(caps)}"
+    loose = [str(o) for o in _as_list(svc.get("security_opt"))
+             if re.search(r"unconfined|label[:=]disable", str(o))]
+    if loose:
+        yield "security_opt", f"turns off confinement ({', '.join(loose)})"
+    if any(str(r).split(" ")[0] == "a" for r in _as_list(svc.get("device_cgroup_rules"))):
+        yield "device_cgroup_rules", "may use every device of the robot (device_cgroup_rules `a …`)"
 
 
 @rule("docker-socket-mounted", "error", "service", "No container mounts the Docker socket.",
@@ -495,12 +520,24 @@ def _privileged(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
 def _docker_socket(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
     declared = ctx.service(name)
     sources = sorted(_mount_source(v) for v in _as_list(svc.get("volumes")))
-    socket = next((s for s in sources if s.rstrip("/").endswith("docker.sock")), None)
+    socket = next((s for s in sources if _holds_engine_socket(s)), None)
     if socket and not (declared and declared.allow_privileged):
         yield ("services", name, "volumes"), (
-            f"service {name} mounts {socket}: whoever controls the container controls the robot's Docker "
-            "engine, which is root on the robot; remove the mount, or set `allow_privileged: true` to say it "
-            "is on purpose")
+            f"service {name} mounts {socket}{'' if socket.endswith('.sock') else ', which holds the engine socket'}"
+            ": whoever controls the container controls the robot's container engine, which is root on the robot; "
+            "remove the mount, or set `allow_privileged: true` to say it is on purpose")
+
+
+_ENGINE_SOCKETS = ("/var/run/docker.sock", "/run/docker.sock", "/run/containerd/containerd.sock",
+                   "/var/run/containerd/containerd.sock", "/run/podman/podman.sock", "/var/run/podman/podman.sock")
+
+
+def _holds_engine_socket(source: str) -> bool:
+    """An engine's socket, or a directory it lies in (`/var/run:/hostrun` reaches it as well)."""
+    if source.rstrip("/").rsplit("/", 1)[-1] in ("docker.sock", "containerd.sock", "podman.sock"):
+        return True
+    folder = "/" + source.strip("/")
+    return source.startswith("/") and any(sock.startswith(folder.rstrip("/") + "/") for sock in _ENGINE_SOCKETS)
 
 
 @rule("shm-too-small", "error", "service", "shm_size is at least 256 MB (Docker's 64 MB breaks DDS shared memory).",

@@ -17,7 +17,7 @@ import os
 import re
 import shlex
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from rosdeploy import ready as readiness, rotation, schema_quick, window as windows, yamlsrc
 from rosdeploy.errors import FleetSpecError, InputError, Problem
@@ -49,6 +49,8 @@ REPOSITORY_RE = re.compile(rf"{_COMPONENT}(?:/{_COMPONENT})*")
 _DURATION_PART = re.compile(r"([0-9]+(?:\.[0-9]+)?)(ms|h|m|s)")   # ASCII digits only: int("²") fails
 _SIZE_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)([kmg])b?", re.IGNORECASE)
 _UNITS = {"ms": 0.001, "s": 1, "m": 60, "h": 3600}
+MAX_LIMIT_BYTES = 2**63 - 1           # Docker keeps memory and log sizes as int64
+MAX_CPUS = 1024
 MAX_DURATION = 366 * 24 * 3600.0      # a year: no wait, deadline or window is longer
 _SECRET_ENV_REF = re.compile(r"\$\{?ROSDEPLOY_VAULT_PASSWORD")
 _CONTROL = {"\n": "a newline", "\r": "a carriage return", "\0": "a NUL byte"}
@@ -68,7 +70,13 @@ MANAGED_COMPOSE = {"image": "image/tag", "command": "command", "environment": "e
                    "build": "image", "group_add": "devices (their groups, dialout or video, are added for you)",
                    "volumes": "volumes (bind mounts of robot directories; the DDS config, /dev/shm and logs "
                               "are mounted for you)",
-                   "labels": "project/service/version labels (rendered)"}
+                   "labels": "project/service/version labels (rendered)",
+                   # Not rendered, refused: they would bring in what `check` never sees (another
+                   # container's mounts, a compose file on the robot) or break the switch between
+                   # releases (a fixed container name cannot exist twice).
+                   "volumes_from": "volumes (bind mounts of robot directories)",
+                   "extends": "the service's own keys (what runs is what the fleet file says)",
+                   "container_name": "the service name (containers are named by project and service)"}
 
 Convert = Callable[["Reader", KeyPath, Any], Any]
 
@@ -400,6 +408,9 @@ def _registry(r: Reader, kp: KeyPath, value: Any) -> Any:
     if not REGISTRY_RE.fullmatch(value):
         raise Invalid(f"{value!r} is not a registry: write host[:port][/path], e.g. registry.local:5000, "
                       "without a scheme (no https://)")
+    port = re.match(r"[^/]*:([0-9]+)", value)
+    if port and not 0 < int(port[1]) < 65536:
+        raise Invalid(f"{value!r}: port {port[1]} is not a TCP port (1-65535)")
     return value
 
 
@@ -576,15 +587,45 @@ def _memory(r: Reader, kp: KeyPath, value: Any) -> Any:
     if size_bytes(value) < DOCKER_MIN_MEMORY:
         raise Invalid(f"{value!r} is below Docker's minimum memory limit of 6m: give the service "
                       "what it needs, e.g. 256m")
+    if size_bytes(value) > MAX_LIMIT_BYTES:
+        raise Invalid(f"{value!r} is more memory than Docker can limit to (a 64-bit byte count)")
     return value
 
 
 def _cpus(r: Reader, kp: KeyPath, value: Any) -> Any:
     """A CPU limit: a finite number above 0 (`.inf` would be written as `inf` for compose)."""
     value = _positive(r, kp, value)
-    if not math.isfinite(value):
-        raise Invalid(f"must be a finite number of CPUs, e.g. 1.5; got {value}")
+    if not math.isfinite(value) or value > MAX_CPUS:
+        raise Invalid(f"must be a number of CPUs up to {MAX_CPUS}, e.g. 1.5; got {value}")
     return value
+
+
+def _log_size(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """json-file's max-size: above 0 (`0m` makes dockerd refuse to create the container)."""
+    value = _size(r, kp, value)
+    if not 0 < size_bytes(value) <= MAX_LIMIT_BYTES:
+        raise Invalid(f"{value!r}: a log file's size must be above 0 and a 64-bit byte count, e.g. 10m")
+    return value
+
+
+def _waves(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """Cumulative wave targets: at least one, never shrinking (counts and percents each)."""
+    waves = _listof(_wave, "waves")(r, kp, value)
+    problem = wave_order(waves)
+    if problem:
+        raise Invalid(problem)
+    return waves
+
+
+def wave_order(waves: Sequence[int | str]) -> str | None:
+    """Why these wave targets are no rollout (none, or one shrinking), or None; for --waves too."""
+    if not waves:
+        return 'name at least one wave, e.g. [1, "100%"]'
+    for kind in (int, str):
+        sizes = [int(w) if isinstance(w, int) else int(w[:-1]) for w in waves if isinstance(w, kind)]
+        if sizes != sorted(sizes):
+            return f"waves are cumulative targets and never shrink; got {', '.join(map(str, waves))}"
+    return None
 
 
 def _rotate_every(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -678,15 +719,15 @@ SERVICE = {
 }
 SECTIONS: dict[str, Mapping[str, Convert]] = {
     "ssh": {"known_hosts": Reader.local_path, "config": Reader.local_path,
-            "connect_timeout": _duration, "command_timeout": _duration,
+            "connect_timeout": _positive_duration, "command_timeout": _positive_duration,
             "persist": _duration},
     "ros": {"rmw": _enum("fastdds", "cyclonedds"), "network_mode": _enum("host", "bridge"), "shm_size": _size},
-    "logging": {"max_size": _size, "max_file": _integer(1), "rotate_every": _rotate_every},
+    "logging": {"max_size": _log_size, "max_file": _integer(1), "rotate_every": _rotate_every},
     "preflight": {"min_free_disk_mb": _integer(0)},
-    "health": {"timeout": _duration, "stable": _duration, "interval": _duration,
-               "topic_window": _duration, "topics_within": _positive_duration,
+    "health": {"timeout": _positive_duration, "stable": _duration, "interval": _positive_duration,
+               "topic_window": _positive_duration, "topics_within": _positive_duration,
                "probe_service": _string(NAME_RE, "service name")},
-    "rollout": {"waves": _listof(_wave, "waves"), "max_fail": _max_fail, "forks": _integer(1),
+    "rollout": {"waves": _waves, "max_fail": _max_fail, "forks": _integer(1),
                 "order_by": _order_by, "pause": _duration,
                 "retry": _duration, "retry_max": _duration, "count_busy": _boolean},
     "rollback": {"auto": _boolean, "fleet": _boolean, "keep_releases": _integer(2),

@@ -39,6 +39,7 @@ TEMPLATE_DIR = Path(__file__).parent / "templates"
 
 COMPOSE_FILE = "compose.yml"
 ENV_FILE = ".env"
+RELEASE_METADATA = frozenset({"manifest.json", "images.txt"})     # added by the upload (deploy._tarball)
 UDEV_FILE = "99-rosdeploy.rules"
 LOGROTATE_FILE = rotation.CONF_FILE
 ROTATION_FILE = rotation.CRON_FILE
@@ -372,8 +373,14 @@ class Renderer:
         if self.override is None:
             return {}
         known = set(builtin) | {"fastdds.xml.j2", "cyclonedds.xml.j2"}
-        return {p.name[:-3]: p.name for p in sorted(self.override.glob("*.j2"))
-                if p.is_file() and p.name not in known and not p.name.startswith("_")}
+        extra = {p.name[:-3]: p.name for p in sorted(self.override.glob("*.j2"))
+                 if p.is_file() and p.name not in known and not p.name.startswith("_")}
+        taken = sorted(RELEASE_METADATA & set(extra))
+        if taken:     # the upload adds rosdeploy's own: a second member of that name in the release
+            raise RenderError([Problem(str(self.override / extra[name]), None, "",
+                                       f"{name} is written by rosdeploy into every release (version, digest, "
+                                       "image ids): rename this template") for name in taken])
+        return extra
 
     def _compile(self, name: str) -> jinja2.Template:
         try:

@@ -405,7 +405,9 @@ def read_password_file(path: str, given: str = "") -> bytes:
 
 def _run_password_script(path: str) -> bytes:
     try:
-        done = subprocess.run([path], stdout=subprocess.PIPE, stderr=subprocess.PIPE, timeout=120, check=False)
+        # absolute: a bare `pw` would be looked up on $PATH, not in the current directory
+        done = subprocess.run([os.path.abspath(path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, timeout=120,
+                              check=False)
     except (OSError, subprocess.TimeoutExpired) as exc:
         raise _error(path, f"the vault password file is executable but could not be run ({exc}); "
                            "remove its execute bit if it is a plain password file") from exc

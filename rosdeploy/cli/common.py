@@ -111,8 +111,12 @@ def duration(text: str) -> float:
 
 def waves(text: str) -> tuple[int | str, ...]:
     """`--waves 1,10%,100%`: the fleet file's rollout.waves, one target per comma."""
-    from rosdeploy.fleet import WAVE_HINT
-    return tuple(_wave_word(word, 1, f"each wave must be {WAVE_HINT}") for word in text.replace(" ", "").split(","))
+    from rosdeploy.fleet import WAVE_HINT, wave_order
+    waves = tuple(_wave_word(word, 1, f"each wave must be {WAVE_HINT}") for word in text.replace(" ", "").split(","))
+    problem = wave_order(waves)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return waves
 
 
 def fail_limit(text: str) -> int | str:
@@ -127,6 +131,24 @@ def _wave_word(word: str, least: int, hint: str) -> int | str:
         return wave_target(int(word) if re.fullmatch(r"[0-9]{1,9}", word) else word, least)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{word!r}: {hint}") from None
+
+
+def release_word(text: str) -> str:
+    """`rollback --to 1.0.0` (or a release id): a tag's characters, refused before any robot is
+    asked (`../../x` would otherwise travel to every robot as a release name)."""
+    from rosdeploy.fleet import TAG_RE
+    if not TAG_RE.fullmatch(text):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a version or release id: use letters, digits, `_`, "
+                                         "`.` and `-`, e.g. 1.0.0 or 1.0.0-3f9a2c1d4e5f")
+    return text
+
+
+def group_prefix(text: str) -> str:
+    """`--order-by site_`: what the fleet file's rollout.order_by takes."""
+    if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]*", text):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a group prefix: letters, digits, `_`, `.` and `-`, "
+                                         "e.g. site_")
+    return text
 
 
 def positive_int(text: str) -> int:

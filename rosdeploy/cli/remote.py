@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from rosdeploy.cli import images
 from rosdeploy.cli.common import (INTERRUPTED_RUN, Parser, add_command, add_fleet_args, duration, fail_limit,
-                                  inventory_targets, positive_int, waves)
+                                  group_prefix, inventory_targets, positive_int, release_word, waves)
 from rosdeploy.cli.vault import vault_from_args
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
                               EXIT_PARTIAL, InputError)
@@ -44,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='comma-separated cumulative wave targets, e.g. "1,10%%,50%%,100%%"')
     p.add_argument("--max-fail", type=fail_limit, metavar="LIMIT",
                    help="failures tolerated per wave before the rollout stops: a count, or a percent like 10%%")
-    p.add_argument("--order-by", metavar="PREFIX", help="inventory group prefix to order robots by, e.g. site_")
+    p.add_argument("--order-by", type=group_prefix, metavar="PREFIX",
+                   help="inventory group prefix to order robots by, e.g. site_")
     p.add_argument("--pause", type=duration, metavar="DURATION",
                    help="wait between waves: seconds or 30s, 2m, 1m30s (overrides rollout.pause)")
     p.add_argument("--step", action="store_true", help="ask before every wave after the first")
@@ -82,7 +83,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                      EXIT_PARTIAL: "the rollback failed on some robot", EXIT_INTERRUPTED: INTERRUPTED_RUN})
     add_fleet_args(p, version=False)
     _add_run_args(p)
-    p.add_argument("--to", metavar="VERSION", help="a kept version to switch to instead of the previous one")
+    p.add_argument("--to", type=release_word, metavar="VERSION",
+                   help="a kept version to switch to instead of the previous one")
     p.add_argument("--forks", type=positive_int, metavar="N",
                    help="robots rolled back in parallel (default: all at once)")
     p.set_defaults(func=cmd_rollback)

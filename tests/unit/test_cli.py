@@ -169,6 +169,8 @@ def test_waves_and_max_fail_take_what_the_fleet_file_takes() -> None:
     args = build_parser().parse_args(["apply", "F", "--waves", "1, 10%,100%", "--max-fail", "0"])
     assert (args.waves, args.max_fail) == ((1, "10%", "100%"), 0)
     assert build_parser().parse_args(["apply", "F", "--max-fail", "25%"]).max_fail == "25%"
+    with pytest.raises(UsageError, match="--waves: waves are cumulative targets and never shrink"):
+        build_parser().parse_args(["apply", "F", "--waves", "2,1"])
 
 
 @pytest.mark.parametrize("option, text", [("--waves", "x"), ("--waves", "1,x"), ("--waves", "0"),

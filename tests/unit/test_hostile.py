@@ -191,6 +191,36 @@ def test_an_error_finding_blocks_every_command(capsys: pytest.CaptureFixture, la
         assert "unreachable" not in text and "host key" not in text
 
 
+@pytest.mark.parametrize("change, rule, words", [
+    ({"volumes": ["/var/run:/hostrun"]}, "docker-socket-mounted", "mounts /var/run, which holds the engine socket"),
+    ({"volumes": ["/run:/r:ro"]}, "docker-socket-mounted", "mounts /run, which holds"),
+    ({"volumes": ["/run/containerd/containerd.sock:/c.sock"]}, "docker-socket-mounted", "containerd.sock"),
+    ({"compose": {"pid": "host"}}, "privileged", "(pid: host)"),
+    ({"compose": {"userns_mode": "host"}}, "privileged", "(userns_mode: host)"),
+    ({"compose": {"cap_add": ["ALL"]}}, "privileged", "adds ALL"),
+    ({"compose": {"cap_add": ["cap_sys_admin"]}}, "privileged", "adds SYS_ADMIN"),
+    ({"compose": {"security_opt": ["seccomp:unconfined"]}}, "privileged", "turns off confinement"),
+    ({"compose": {"device_cgroup_rules": ["a *:* rwm"]}}, "privileged", "every device"),
+])
+def test_privilege_piece_by_piece_is_privilege(capsys: pytest.CaptureFixture, lab: Path, change: dict, rule: str,
+                                               words: str) -> None:
+    edit(lab, lambda d: d["services"]["driver"].update(change))
+    code, text = cli(capsys, lab, "check")
+    assert code == 2 and f"[{rule}]" in text and words in text, text
+    edit(lab, lambda d: d["services"]["driver"].update(allow_privileged=True))
+    code, text = cli(capsys, lab, "check")
+    assert f"[{rule}]" not in text, text
+
+
+@pytest.mark.parametrize("key", ["volumes_from", "extends", "container_name"])
+def test_compose_keys_that_bring_in_what_check_never_sees_are_refused(capsys: pytest.CaptureFixture, lab: Path,
+                                                                      key: str) -> None:
+    value = {"volumes_from": ["bridge"], "extends": {"file": "/etc/evil.yml", "service": "x"},
+             "container_name": "../x"}[key]
+    edit(lab, lambda d: d["services"]["driver"].update(compose={key: value}))
+    refused_everywhere(capsys, lab, f"compose.{key}")
+
+
 def test_allow_privileged_waives_privileged(capsys: pytest.CaptureFixture, lab: Path) -> None:
     edit(lab, lambda d: d["services"]["driver"].update(privileged=True, allow_privileged=True))
     code, text = cli(capsys, lab, "render")
@@ -510,3 +540,23 @@ def test_hashed_and_bracketed_entries_still_verify(keys: dict, tmp_path: Path) -
     assert "amr1" not in known_hosts.read_text()     # really hashed
     assert known.keys.lookup("amr1") and known.keys.lookup("[10.0.0.5]:2222")
     assert known.keys.lookup("amr2") is None
+
+
+@pytest.mark.parametrize("name", ["manifest.json", "images.txt"])
+def test_a_template_cannot_take_the_name_of_the_releases_own_metadata(capsys: pytest.CaptureFixture, lab: Path,
+                                                                      name: str) -> None:
+    # deploy._tarball adds its own: the release would carry two members of that name
+    (lab / "templates").mkdir()
+    (lab / "templates" / f"{name}.j2").write_text("{}\n")
+    edit(lab, lambda d: d.update(templates="./templates"))
+    refused_everywhere(capsys, lab, f"{name}.j2", f"{name} is written by rosdeploy into every release")
+    assert not (lab / "out").exists()
+
+
+@pytest.mark.parametrize("argv, option", [(["rollback", "F", "--to", "../../x"], "--to"),
+                                          (["apply", "F", "--order-by", "a b"], "--order-by")])
+def test_command_line_words_that_reach_robots_are_checked_first(argv: list[str], option: str) -> None:
+    from rosdeploy.cli import build_parser
+    from rosdeploy.cli.common import UsageError
+    with pytest.raises(UsageError, match=f"argument {option}: "):
+        build_parser().parse_args(argv)

@@ -201,6 +201,13 @@ def test_executable_password_file_is_run(tmp_path, sealed):
         Vault(password_file=str(script)).decrypt(sealed, "v.yml")
 
 
+def test_an_executable_password_file_named_without_a_folder_is_this_folders(tmp_path, sealed, monkeypatch):
+    (tmp_path / "pw").write_text(f"#!{sys.executable}\nprint('right')\n")
+    (tmp_path / "pw").chmod(0o700)
+    monkeypatch.chdir(tmp_path)       # `--vault-password-file pw` used to be looked up on $PATH
+    assert Vault(password_file="pw").decrypt(sealed, "v.yml") == SECRET
+
+
 # ------------------------------------------------------------------ files in place
 
 
