@@ -14,6 +14,7 @@ able to run code: Jinja2's SandboxedEnvironment (no `__globals__`, no
 """
 from __future__ import annotations
 
+import functools
 import posixpath
 import re
 import threading
@@ -21,7 +22,7 @@ from typing import Any, Iterator, Mapping
 
 import jinja2
 
-from rosdeploy.sandbox import Sandbox
+from rosdeploy.sandbox import MAX_LENGTH, Sandbox
 
 from rosdeploy.errors import InventoryError, Problem
 from rosdeploy.inventory.draft import Origin
@@ -34,10 +35,11 @@ _WHOLE = re.compile(r"^\{\{(?P<expr>.*)\}\}$", re.S)
 class TemplateFailed(Exception):
     """A value could not be templated; `key` is the var whose template failed."""
 
-    def __init__(self, key: str, message: str) -> None:
+    def __init__(self, key: str, message: str, deep: bool = False) -> None:
         super().__init__(message)
         self.key = key
         self.message = message
+        self.deep = deep     # Python's stack ran out: every var on the way down failed with it
 
 
 class UnresolvedVar(InventoryError, jinja2.UndefinedError):
@@ -93,6 +95,7 @@ class HostVars(Mapping[str, Any]):
         self._origins = origins
         self._magic = dict(magic)
         self._done: dict[str, Any] = {}
+        self._too_deep: dict[str, TemplateFailed] = {}
         self._overrides: dict[str, Any] = {}
 
     def override(self, key: str, value: Any) -> None:
@@ -120,7 +123,14 @@ class HostVars(Mapping[str, Any]):
             return self._overrides[key]
         if key in self._done:
             return self._done[key]
-        value = self._template(key, self._raw[key])
+        if key in self._too_deep:
+            raise self._too_deep[key]
+        try:
+            value = self._template(key, self._raw[key])
+        except TemplateFailed as failed:
+            if failed.deep:    # kept: reading it again would only climb down the same chain again
+                self._too_deep[key] = failed
+            raise
         self._done[key] = value
         return value
 
@@ -183,24 +193,26 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
         whole = _WHOLE.match(value)
         if whole and "{{" not in whole["expr"] and "}}" not in whole["expr"]:
             return _expression(whole["expr"], scope)
-        template = _ENV.from_string(value)
+        template = _compiled(value)
         context = template.new_context(scope, shared=True)
-        return _ENV.concat(template.root_render_func(context))
+        text = _ENV.concat(template.root_render_func(context))
+        if len(text) > MAX_LENGTH:    # `d2: "{{ d1 }}{{ d1 }}"` doubling on: no operator to bound
+            raise TemplateFailed(key, f"the value of {key} would be longer than {MAX_LENGTH:,} characters")
+        return text
     except TemplateFailed:
         raise
     except jinja2.TemplateError as exc:
         raise TemplateFailed(key, f"cannot template {value!r}: {_reason(exc)}") from None
     except RecursionError:
-        raise TemplateFailed(key, f"cannot template {value!r}: the templates refer to each other "
-                                  "without end") from None
+        raise TemplateFailed(key, f"cannot template {value!r}: the templates refer to each other without end, "
+                                  "or nest too deeply", deep=True) from None
     except (TypeError, ValueError, ArithmeticError, LookupError, AttributeError) as exc:
         raise TemplateFailed(key, f"cannot template {value!r}: {exc}") from None
 
 
 def _expression(expr: str, scope: _Scope) -> Any:
     """`{{ expr }}` alone: the expression's own value, not its text (so a number stays a number)."""
-    compiled = _ENV.compile_expression(expr, undefined_to_none=False)
-    template = compiled._template
+    template = _compiled_expression(expr)
     context = template.new_context(scope, shared=True)
     for _ in template.root_render_func(context):
         pass
@@ -208,6 +220,18 @@ def _expression(expr: str, scope: _Scope) -> Any:
     if isinstance(result, jinja2.Undefined):
         result._fail_with_undefined_error()
     return result
+
+
+# One compile per distinct text: the same group_vars value is templated for every robot
+# (500 hosts, one compile), and a var read again after a failure compiles nothing again.
+@functools.lru_cache(maxsize=4096)
+def _compiled(value: str) -> jinja2.Template:
+    return _ENV.from_string(value)
+
+
+@functools.lru_cache(maxsize=4096)
+def _compiled_expression(expr: str) -> jinja2.Template:
+    return _ENV.compile_expression(expr, undefined_to_none=False)._template
 
 
 def _reason(exc: jinja2.TemplateError) -> str:
