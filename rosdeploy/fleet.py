@@ -14,6 +14,7 @@ from __future__ import annotations
 import difflib
 import math
 import os
+import stat
 import re
 import shlex
 from pathlib import Path
@@ -51,6 +52,7 @@ _SIZE_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)([kmg])b?", re.IGNORECASE)
 _UNITS = {"ms": 0.001, "s": 1, "m": 60, "h": 3600}
 MAX_LIMIT_BYTES = 2**63 - 1           # Docker keeps memory and log sizes as int64
 MAX_CPUS = 1024
+MAX_KNOWN_HOSTS = 16 << 20            # transport.MAX_KNOWN_HOSTS: what a robot's check reads at most
 MAX_DURATION = 366 * 24 * 3600.0      # a year: no wait, deadline or window is longer
 _SECRET_ENV_REF = re.compile(r"\$\{?ROSDEPLOY_VAULT_PASSWORD")
 _CONTROL = {"\n": "a newline", "\r": "a carriage return", "\0": "a NUL byte"}
@@ -350,6 +352,21 @@ def _positive(r: Reader, kp: KeyPath, value: Any) -> Any:
 
 def _positive_duration(r: Reader, kp: KeyPath, value: Any) -> Any:
     return _positive(r, kp, _duration(r, kp, value))
+
+
+def _known_hosts_file(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """ssh.known_hosts: a regular file (a fifo hangs the read, /dev/zero fills memory); a missing
+    one is each robot's error, as OpenSSH makes it."""
+    path = r.local_path(kp, value)
+    try:
+        info = os.stat(path)
+    except OSError:
+        return path
+    if not stat.S_ISREG(info.st_mode):
+        raise Invalid(f"{path} is not a regular file (a fifo, a device or a directory): give a known_hosts file")
+    if info.st_size > MAX_KNOWN_HOSTS:
+        raise Invalid(f"{path} is larger than {MAX_KNOWN_HOSTS >> 20} MB: that is no known_hosts file")
+    return path
 
 
 def _duration(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -718,7 +735,7 @@ SERVICE = {
     "files": _listof(_string(NAME_RE, "file name (a key of the top-level `files:`)"), "file names"),
 }
 SECTIONS: dict[str, Mapping[str, Convert]] = {
-    "ssh": {"known_hosts": Reader.local_path, "config": Reader.local_path,
+    "ssh": {"known_hosts": _known_hosts_file, "config": Reader.local_path,
             "connect_timeout": _positive_duration, "command_timeout": _positive_duration,
             "persist": _duration},
     "ros": {"rmw": _enum("fastdds", "cyclonedds"), "network_mode": _enum("host", "bridge"), "shm_size": _size},

@@ -18,6 +18,7 @@ import os
 import random
 import select
 import socket
+import stat
 import threading
 import time
 from concurrent.futures import Future
@@ -122,7 +123,10 @@ class SSHTransport:
             kwargs["key_filename"] = [os.path.expanduser(self.host.key_file)]
         conn = Connection(self.host.address, user=self.host.user, port=self.host.port, config=config,
                           connect_timeout=int(self.options.connect_timeout) or None, connect_kwargs=kwargs)
-        files = [_parsed_host_keys(path) for path in known_hosts_for(self.host, self.options)]
+        try:
+            files = [_parsed_host_keys(path) for path in known_hosts_for(self.host, self.options)]
+        except UnusableKnownHosts as exc:
+            raise HostKeyError(self.host.name, f"{exc}: {self._known_hosts_setting(exc.path)}") from exc
         conn.client.set_missing_host_key_policy(_RejectUnknown(files))
         for known in files:
             conn.client.get_host_keys().update(known.keys)
@@ -170,6 +174,19 @@ class SSHTransport:
                                "relative one is taken from the working directory, as in Ansible; write "
                                "'{{ inventory_dir }}/...' for one beside the inventory)")
 
+    def _known_hosts_setting(self, path: str) -> str:
+        """What to fix for a known_hosts file that cannot be used, by where it was chosen."""
+        if self.host.vars.get("rosdeploy_known_hosts"):
+            where = "the inventory's `rosdeploy_known_hosts` for this robot"
+        elif self.options.known_hosts:
+            where = "`ssh.known_hosts` in the fleet file"
+        else:
+            where = ""
+        if where and path == os.path.expanduser(str(self.host.vars.get("rosdeploy_known_hosts")
+                                                     or self.options.known_hosts)):
+            return f"point {where} at a known_hosts file (a regular file of host keys)"
+        return f"replace {path} with a regular known_hosts file of host keys, or remove it"
+
     def _changed_key_message(self, exc: paramiko.BadHostKeyException) -> str:
         files = ", ".join(known_hosts_for(self.host, self.options))
         return (f"HOST KEY CHANGED for {self.endpoint}: it offered {exc.key.get_name()} "
@@ -179,7 +196,7 @@ class SSHTransport:
 
     def _unknown_key_message(self) -> str:
         paths = known_hosts_for(self.host, self.options)
-        skipped = " ".join(w for path in paths for w in _parsed_host_keys(path).warnings)
+        skipped = " ".join(w for path in paths for w in known_hosts_warnings(path))
         return (f"host key of {self.endpoint} is not in {', '.join(paths)}; rosdeploy never trusts an unknown "
                 f"key. Verify the robot's fingerprint, then add it (e.g. `ssh-keyscan -p {self._conn.port} "
                 f"{self._conn.host} >> ~/.ssh/known_hosts`) or point `rosdeploy_known_hosts` at a file that has it."
@@ -279,10 +296,48 @@ class _RejectUnknown(paramiko.MissingHostKeyPolicy):
         raise paramiko.SSHException(f"Server {hostname!r} not found in known_hosts")
 
 
+MAX_KNOWN_HOSTS = 16 << 20   # bytes: 100,000 robots' keys take ~10 MB; /dev/zero or a runaway file, without end
+
+
+class UnusableKnownHosts(Exception):
+    """A known_hosts file that is not a regular file, or too big to be one: refused, never read."""
+
+    def __init__(self, path: str, message: str) -> None:
+        self.path = path
+        super().__init__(f"known_hosts file {path} {message}")
+
+
 @functools.lru_cache(maxsize=32)
 def _host_keys_file(path: str, mtime_ns: int) -> KnownHosts:
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        return parse_known_hosts(handle.read().splitlines(), path)
+    return parse_known_hosts(_read_known_hosts(path).splitlines(), path)
+
+
+def _read_known_hosts(path: str) -> str:
+    """The file's text, read only when it is a regular file of at most MAX_KNOWN_HOSTS bytes: a
+    fifo would hang the run and /dev/zero fill its memory. Opened without blocking (a fifo with
+    no writer) and checked on the open descriptor, so a file swapped after a stat is caught too."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise UnusableKnownHosts(path, f"is {_file_kind(mode)}, not a regular file")
+        chunks: list[bytes] = []
+        size = 0
+        while size <= MAX_KNOWN_HOSTS and (chunk := os.read(fd, min(1 << 20, MAX_KNOWN_HOSTS + 1 - size))):
+            chunks.append(chunk)
+            size += len(chunk)
+    finally:
+        os.close(fd)
+    if size > MAX_KNOWN_HOSTS:
+        raise UnusableKnownHosts(path, f"is larger than {MAX_KNOWN_HOSTS >> 20} MB: that is no known_hosts file")
+    data = b"".join(chunks)
+    return data.decode("utf-8", errors="replace")
+
+
+def _file_kind(mode: int) -> str:
+    kinds = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a named pipe (fifo)"), (stat.S_ISCHR, "a device"),
+             (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+    return next((what for test, what in kinds if test(mode)), "not a file")
 
 
 def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
@@ -315,7 +370,9 @@ def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
 def _entry(line: str) -> paramiko.hostkeys.HostKeyEntry | None:
     try:
         entry = paramiko.hostkeys.HostKeyEntry.from_line(line)
-    except (paramiko.SSHException, ValueError, TypeError, IndexError):   # InvalidHostKey is an SSHException
+    except Exception:   # noqa: BLE001 - InvalidHostKey (not an SSHException), binascii.Error, ValueError...
+        # A line that is not a key is skipped, as OpenSSH does; _warnings names it by line number only,
+        # never by its text (it may be any bytes).
         return None
     return entry if entry is not None and entry.key is not None else None
 
@@ -333,13 +390,18 @@ def _warnings(path: str, authorities: int, unreadable: list[int]) -> tuple[str, 
                    "certificates (paramiko does not); list the robots' plain host keys in known_hosts.")
     if unreadable:
         lines = ", ".join(map(str, unreadable[:10]))
-        out.append(f"{path}: line(s) {lines} skipped: not a host key rosdeploy can read.")
+        more = f" and {len(unreadable) - 10} more" if len(unreadable) > 10 else ""
+        out.append(f"{path}:{unreadable[0]}: line(s) {lines}{more} skipped: not a host key rosdeploy can read "
+                   "(OpenSSH skips them too); fix or remove them.")
     return tuple(out)
 
 
 def known_hosts_warnings(path: str) -> tuple[str, ...]:
-    """What was skipped in a known_hosts file, for a command that wants to show it."""
-    return _parsed_host_keys(os.path.expanduser(path)).warnings
+    """What was skipped in a known_hosts file (or why none of it was read), for a command that wants to show it."""
+    try:
+        return _parsed_host_keys(os.path.expanduser(path)).warnings
+    except UnusableKnownHosts as exc:
+        return (f"{exc}.",)
 
 
 def _parsed_host_keys(path: str) -> KnownHosts:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import re
+import stat
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
@@ -186,6 +187,26 @@ def _to_local_path(value: Any) -> str:
     return _safe_text(os.path.abspath(os.path.expanduser(value)), "a file path")
 
 
+KNOWN_HOSTS_MAX = 16 << 20   # bytes: transport.MAX_KNOWN_HOSTS (not imported: it would load paramiko here)
+
+
+def _to_known_hosts(value: Any) -> str:
+    """A known_hosts path, refused at load when it names something that is not a regular file (a
+    fifo would hang the connection, /dev/zero fill memory; transport refuses them too). A missing
+    file is each robot's error, where it says which key is not found."""
+    path = _to_local_path(value)
+    try:
+        info = os.stat(path)
+    except OSError:
+        return path
+    if not stat.S_ISREG(info.st_mode):
+        raise BadValue(f"{path} is not a regular file (a fifo, a device or a directory): give the path of a "
+                       "known_hosts file")
+    if info.st_size > KNOWN_HOSTS_MAX:
+        raise BadValue(f"{path} is larger than {KNOWN_HOSTS_MAX >> 20} MB: that is no known_hosts file")
+    return path
+
+
 def _to_remote_root(value: Any) -> str:
     """A directory on the robot, the way the fleet file's deploy_root is checked."""
     # The pattern admits letters, digits and `_.-` only: no shell metacharacter gets through.
@@ -343,7 +364,7 @@ OWN_VARS: dict[str, Var] = {
 }
 # Read from Host.vars by transport, deploy and render; checked (and paths made absolute) here.
 PREFIXED_ONLY: dict[str, Var] = {
-    "rosdeploy_known_hosts": Var(None, _to_local_path),
+    "rosdeploy_known_hosts": Var(None, _to_known_hosts),
     "rosdeploy_deploy_root": Var(None, _to_remote_root),
     "rosdeploy_home": Var(None, _to_remote_root),
     "rosdeploy_compose": Var(None, _to_compose),

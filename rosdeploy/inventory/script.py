@@ -20,10 +20,12 @@ from typing import Any
 from rosdeploy.errors import Problem
 from rosdeploy.inventory.draft import Draft, Origin, make_layer
 from rosdeploy.inventory.ranges import valid_name
-from rosdeploy.yamlsrc import Doc
+from rosdeploy.yamlsrc import MAX_DEPTH, Doc
 
 TIMEOUT = 60.0   # seconds per run: a cloud API behind the script may be slow, a hung one must not hang us
-MAX_OUTPUT = 256 << 20   # bytes: 5,000 robots with rich hostvars print a few MB; a runaway script, without end
+MAX_OUTPUT = 64 << 20    # bytes: 5,000 robots with rich hostvars print a few MB; a runaway script, without end
+MAX_STDERR = 2000        # characters of a failed script's stderr quoted in the error (its end)
+PRIVATE_ENV = ("ROSDEPLOY_VAULT_PASSWORD", "ROSDEPLOY_VAULT_PASSWORD_FILE")   # never passed to a script
 POLL = 0.05      # seconds between looks at a running script's time and output size
 
 
@@ -44,18 +46,53 @@ def parse_script(path: Path, draft: Draft) -> None:
     if data is None:
         return
     origin = Origin(Doc(str(path), data, {(): 1}))
+    hostvars = _hostvars(origin, data, draft)
     for group, entry in data.items():
         if group != "_meta":
             _group(origin.child(group), str(group), entry, draft)
-    hostvars = data.get("_meta", {}).get("hostvars") if isinstance(data.get("_meta"), dict) else None
     for host in list(draft.hosts) if hostvars is None else []:
-        found = _run(path, ["--host", host], draft)
+        found = _run(path, ["--host", host], draft, what="the vars of that host (a JSON object of name: value)")
         if found:
             draft.hosts[host].inline.append(make_layer(found, Origin(Doc(str(path), found, {(): 1}))))
     for host, host_vars in (hostvars or {}).items():
-        if host in draft.hosts and isinstance(host_vars, dict) and host_vars:
+        if host in draft.hosts and host_vars:
             draft.hosts[host].inline.append(make_layer(host_vars, origin.child("_meta").child("hostvars")
                                                        .child(host)))
+
+
+def _hostvars(origin: Origin, data: dict[str, Any], draft: Draft) -> dict[str, dict[str, Any]] | None:
+    """`_meta.hostvars` checked: None when absent (then each host is asked `--host NAME`, as Ansible
+    does), else host name -> mapping of vars (a null is no vars); a wrong shape is refused by key."""
+    shape = "must be {hostvars: {HOST: {NAME: VALUE, ..}, ..}}: fix the script"
+    meta = data.get("_meta")
+    if meta is None:
+        return None
+    if not isinstance(meta, dict):
+        draft.problems.append(origin.problem(("_meta",), f"{_kind(meta)} in the script's output: _meta {shape}"))
+        return {}
+    hostvars = meta.get("hostvars")
+    if hostvars is None:
+        return None
+    if not isinstance(hostvars, dict):
+        draft.problems.append(origin.problem(("_meta", "hostvars"), f"{_kind(hostvars)} in the script's output: "
+                                             "_meta.hostvars must be a mapping of host name -> mapping of its vars "
+                                             "({HOST: {NAME: VALUE, ..}, ..}): fix the script"))
+        return {}
+    out: dict[str, dict[str, Any]] = {}
+    for host, host_vars in hostvars.items():
+        if host_vars is not None and not isinstance(host_vars, dict):
+            draft.problems.append(origin.problem(("_meta", "hostvars", host), f"{_kind(host_vars)} in the script's "
+                                                 "output: the vars of a host must be a mapping of name: value: "
+                                                 "fix the script"))
+            continue
+        out[host] = host_vars or {}
+    return out
+
+
+def _kind(value: Any) -> str:
+    kinds = {dict: "a mapping", list: "a list", str: "a string", bool: "a boolean", int: "a number",
+             float: "a number", type(None): "null"}
+    return kinds.get(type(value), type(value).__name__)
 
 
 def _group(origin: Origin, name: str, entry: Any, draft: Draft) -> None:
@@ -67,23 +104,43 @@ def _group(origin: Origin, name: str, entry: Any, draft: Draft) -> None:
         entry = {"hosts": entry}
     elif not any(key in entry for key in ("hosts", "vars", "children")):
         entry = {"hosts": [name], "vars": entry}
-    hosts, group_vars, children = entry.get("hosts") or [], entry.get("vars") or {}, entry.get("children") or []
-    if not isinstance(hosts, list) or not isinstance(group_vars, dict) or not isinstance(children, list):
-        draft.problems.append(origin.problem((), "the script's output for this group must be {hosts: [..], "
-                                                 "vars: {..}, children: [..]}: fix the script"))
+    hosts, group_vars, children = entry.get("hosts"), entry.get("vars"), entry.get("children")
+    bad = [(key, value, want) for key, value, want in (("hosts", hosts, "a list of host names"),
+                                                        ("vars", group_vars, "a mapping of name: value"),
+                                                        ("children", children, "a list of group names"))
+           if value is not None and not isinstance(value, dict if key == "vars" else list)]
+    for key, value, want in bad:
+        draft.problems.append(origin.problem((key,), f"{_kind(value)} in the script's output: {key} must be {want} "
+                                                     "(a group is {hosts: [..], vars: {..}, children: [..]}, or a "
+                                                     "list of host names): fix the script"))
+    if bad:
         return
-    for host in hosts:
-        if valid_name(str(host), origin, draft, "host"):
-            draft.add_host(name, str(host), origin, None)
+    for index, host in enumerate(hosts or []):
+        # Ansible refuses a host name that is no string ("Invalid host name supplied, expected a
+        # string"): 1 or null would become a robot named "1" or "None".
+        if _string_name(host, origin.child("hosts").child(index), draft, "host") \
+                and valid_name(host, origin, draft, "host"):
+            draft.add_host(name, host, origin, None)
     if group_vars:
         draft.groups[name].inline.append(make_layer(group_vars, origin.child("vars")))
-    for child in children:
-        if valid_name(str(child), origin, draft, "group"):
-            draft.group(str(child), origin.where)
-            draft.groups[name].children.setdefault(str(child), origin)
+    for index, child in enumerate(children or []):
+        if _string_name(child, origin.child("children").child(index), draft, "group") \
+                and valid_name(child, origin, draft, "group"):
+            draft.group(child, origin.where)
+            draft.groups[name].children.setdefault(child, origin)
 
 
-def _run(path: Path, args: list[str], draft: Draft) -> dict[str, Any] | None:
+def _string_name(value: Any, origin: Origin, draft: Draft, what: str) -> bool:
+    if isinstance(value, str):
+        return True
+    shown = json.dumps(value) if isinstance(value, (int, float, bool)) or value is None else _kind(value)
+    draft.problems.append(origin.problem((), f"{what} name {shown} in the script's output is not a string, "
+                                             f"as Ansible requires: print the {what} names as JSON strings"))
+    return False
+
+
+def _run(path: Path, args: list[str], draft: Draft,
+         what: str = "a JSON object of groups") -> dict[str, Any] | None:
     def refuse(message: str) -> dict[str, Any] | None:
         draft.problems.append(Problem(str(path), None, "", f"dynamic inventory script: {message}"))
         return None
@@ -93,7 +150,7 @@ def _run(path: Path, args: list[str], draft: Draft) -> dict[str, Any] | None:
         try:
             # Its own session, so a timeout stops whatever it started too, not only the script.
             proc = subprocess.Popen([str(path.absolute()), *args], stdin=subprocess.DEVNULL, stdout=out,
-                                    stderr=err, start_new_session=True)
+                                    stderr=err, start_new_session=True, env=script_environment())
         except OSError as exc:
             return refuse(f"cannot run it ({exc.strerror}): check its #! line, or remove its execute bit if it "
                           "is not a script")
@@ -105,18 +162,53 @@ def _run(path: Path, args: list[str], draft: Draft) -> dict[str, Any] | None:
             return refuse(f"{command} printed more than {MAX_OUTPUT >> 20} MB: a dynamic inventory prints a "
                           "JSON object of groups; fix the script or export its output to a YAML file")
         out.seek(0)
-        err.seek(0)
+        err.seek(max(0, os.fstat(err.fileno()).st_size - 4 * MAX_STDERR))   # only its end is quoted
         stdout, stderr = out.read(), err.read()
     if proc.returncode != 0:
-        tail = stderr.decode("utf-8", "replace").strip()[-300:]
-        return refuse(f"{command} exited {proc.returncode}: {tail}")
+        return refuse(f"{command} exited {proc.returncode}{_stderr_tail(stderr)}")
     try:
         data = json.loads(stdout.decode("utf-8"))
+    except RecursionError:
+        return refuse(f"{command} printed JSON nested too deeply (more than {MAX_DEPTH} levels): a dynamic "
+                      "inventory prints a JSON object of groups; fix the script")
     except (UnicodeDecodeError, ValueError) as exc:
-        return refuse(f"{command} did not print JSON ({exc}): a dynamic inventory prints a JSON object of groups")
+        return refuse(f"{command} did not print JSON ({exc}): a dynamic inventory prints {what}")
     if not isinstance(data, dict):
-        return refuse("its output must be a JSON object of groups")
+        return refuse(f"{command} printed {_kind(data)}: its output must be {what}")
+    if _too_deep(data):
+        return refuse(f"{command} printed JSON nested too deeply (more than {MAX_DEPTH} levels): fix the script")
     return data
+
+
+def script_environment() -> dict[str, str]:
+    """The environment without rosdeploy's vault password: it is rosdeploy's, not the script's,
+    and a script that echoes its environment would put it in an error message."""
+    return {name: value for name, value in os.environ.items() if name not in PRIVATE_ENV}
+
+
+def _stderr_tail(stderr: bytes) -> str:
+    """The end of what the script printed to stderr, at most MAX_STDERR characters, on one line."""
+    text = stderr.decode("utf-8", "replace").strip()
+    if not text:
+        return ""
+    cut = len(text) > MAX_STDERR
+    text = " | ".join(line.strip() for line in text[-MAX_STDERR:].splitlines() if line.strip())
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return f": {'...' if cut else ''}{text}"
+
+
+def _too_deep(data: Any) -> bool:
+    """Nested past MAX_DEPTH (the bound YAML files have): later steps walk values recursively."""
+    stack = [(data, 1)]
+    while stack:
+        value, depth = stack.pop()
+        if depth > MAX_DEPTH:
+            return True
+        if isinstance(value, dict):
+            stack.extend((item, depth + 1) for item in value.values())
+        elif isinstance(value, list):
+            stack.extend((item, depth + 1) for item in value)
+    return False
 
 
 def _wait(proc: subprocess.Popen, *outputs: int) -> str:

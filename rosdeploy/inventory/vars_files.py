@@ -34,7 +34,9 @@ def _vars_files(folder: Path, draft: Draft) -> dict[str, list[Path]]:
     for entry in sorted(folder.iterdir()):
         if entry.name.startswith(".") or entry.name.endswith("~"):
             continue
-        if entry.suffix in YAML_EXTS and entry.is_file():
+        # Not is_file(): a fifo, a device or a dangling symlink named NAME.yml is still NAME's vars
+        # file, and reading it gives the error ("not a regular file") rather than losing its vars.
+        if entry.suffix in YAML_EXTS and not entry.is_dir():
             candidates.setdefault(entry.stem, []).append(entry)
         elif not entry.name.endswith(SKIPPED_EXTS):   # NAME/ or NAME: host names may hold dots
             candidates.setdefault(entry.name, []).append(entry)
@@ -64,12 +66,16 @@ def _dir_files(folder: Path, draft: Draft, seen: set[str]) -> list[Path]:
             continue
         if entry.is_dir() and not entry.suffix:
             found.extend(_dir_files(entry, draft, seen))
-        elif entry.is_file() and entry.suffix in VARS_EXTS:
+        elif entry.suffix in VARS_EXTS and not entry.is_dir():   # not is_file(): see _vars_files
             found.append(entry)
     return list({os.path.realpath(path): path for path in reversed(found)}.values())[::-1]   # each file once
 
 
 def _read_vars_file(path: Path, reader: Reader, draft: Draft) -> Layer | None:
+    if path.is_symlink() and not path.exists():
+        draft.problems.append(Problem(str(path), None, "", f"a symlink to {os.readlink(path)!r}, which does not "
+                                      "exist: its vars would be lost; fix the link or remove it"))
+        return None
     origin = reader.doc(path, draft.problems)
     if origin is None or origin.doc.data is None:
         return None

@@ -26,7 +26,28 @@ def parse_yaml(root: Origin, draft: Draft) -> None:
             draft.problems.append(doc.problem((name,), f"`{name}:` at the top level: put it under "
                                                        "a group, e.g. `all:`"))
             continue
-        _yaml_group(root.child(name), str(name), entry, draft)
+        if _string_key(name, root.child(name), draft, "group"):
+            _yaml_group(root.child(name), name, entry, draft)
+
+
+def _string_key(key: Any, origin: Origin, draft: Draft, what: str) -> bool:
+    """A host or group name must be a string, as in Ansible's yaml plugin, which refuses the
+    inventory ("Host pattern 1 must be a string. Enclose integers/floats in quotation marks";
+    "Invalid group name supplied, expected a string"). str() would turn `~:` into a robot named
+    "None" and `yes:` into "True"; `1:` is refused too (Ansible 2.19 does), with the fix: quote it."""
+    if isinstance(key, str):
+        return True
+    if key is None:
+        shown, quote = "null (~ or nothing)", "'NAME'"
+    elif isinstance(key, bool):
+        shown, quote = f"the boolean {str(key).lower()}", "'NAME'"
+    elif isinstance(key, (int, float)):
+        shown, quote = f"the number {key!r}", f"'{key}'"
+    else:
+        shown, quote = f"a {type(key).__name__}", "'NAME'"
+    draft.problems.append(origin.problem((), f"{what} name is {shown}, not a string: a {what} name must be "
+                                             f"a string, as Ansible requires; quote it (e.g. {quote}:)"))
+    return False
 
 
 def _yaml_group(origin: Origin, name: str, entry: Any, draft: Draft) -> None:
@@ -71,9 +92,11 @@ def _yaml_hosts(origin: Origin, group: str, hosts: Any, draft: Draft) -> None:
                                        "(and its vars, or nothing)", draft)
     for raw, host_vars in hosts.items():
         host_origin = origin.child(raw)
+        if not _string_key(raw, host_origin, draft, "host"):
+            continue
         host_vars = _as_mapping(host_origin, host_vars, "host vars must be a mapping of name: value "
                                                         "(or nothing after the ':')", draft)
-        add_hosts(str(raw), group, dict(host_vars), host_origin, draft)
+        add_hosts(raw, group, dict(host_vars), host_origin, draft)
 
 
 def _yaml_group_vars(origin: Origin, group: str, data: Any, draft: Draft) -> None:
@@ -87,7 +110,9 @@ def _yaml_children(origin: Origin, group: str, children: Any, draft: Draft) -> N
                                              "by ':'", draft)
     for child, entry in children.items():
         child_origin = origin.child(child)
-        draft.groups[group].children.setdefault(str(child), child_origin)
-        _yaml_group(child_origin, str(child), entry, draft)
+        if not _string_key(child, child_origin, draft, "group"):
+            continue
+        draft.groups[group].children.setdefault(child, child_origin)
+        _yaml_group(child_origin, child, entry, draft)
 
 
