@@ -99,12 +99,21 @@ class Draft:
         return found
 
     def add_host(self, group: str, name: str, origin: Origin, layer: Layer | None) -> None:
+        if len(name.encode()) > MAX_HOST_NAME:
+            # It names the robot's folders (render output, run records): refused here, not by the
+            # file system halfway through a render.
+            self.problems.append(origin.problem((), f"host name {name[:40]!r}... is {len(name.encode())} bytes "
+                                                    f"long: at most {MAX_HOST_NAME} (a DNS name's limit)"))
+            return
         host = self.hosts.get(name)
         if host is None:
             host = self.hosts[name] = HostDraft(name, origin.where)
         if layer is not None and layer.vars:
             host.inline.append(layer)
         self.groups[group].hosts[name] = None
+
+
+MAX_HOST_NAME = 253
 
 
 def split_where(where: str) -> tuple[str, int | None]:

@@ -266,3 +266,26 @@ def test_vars_files_that_are_not_regular_files_are_refused(lab: Path, name: str,
     code, text = isolated(lab, "validate")
     assert code == 2, text
     assert f"{path}: " in text and words in text, text
+
+
+# ------------------------------------------------------------- 5. host names that name folders
+
+@pytest.mark.parametrize("form", ["yaml", "ini"])
+def test_a_host_name_too_long_for_a_folder_is_refused_at_load(capsys: pytest.CaptureFixture, lab: Path,
+                                                              form: str) -> None:
+    name = "r" * 300        # passed validate and check, then render failed on "File name too long"
+    if form == "yaml":
+        hosts = lab / "inventory" / "hosts.yml"
+        hosts.write_text(hosts.read_text().replace(
+            "        r2:\n", f"        {name}:\n          ansible_host: 127.0.0.3\n          ros_domain_id: 3\n"
+                             "        r2:\n"))
+        argv: tuple[str, ...] = ()
+    else:
+        ini = lab / "robots.ini"
+        ini.write_text(f"[lab]\nr1 ansible_host=127.0.0.1 ros_domain_id=1\n{name} ansible_host=1.2.3.4 "
+                       "ros_domain_id=5\n")
+        argv = ("-i", str(ini))
+    for command in ("validate", "render"):
+        code, text = cli(capsys, lab, command, *argv)
+        assert code == 2 and "is 300 bytes long: at most 253" in text, text
+    assert not (lab / "out").exists()
