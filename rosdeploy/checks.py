@@ -176,11 +176,21 @@ def _with_robots(p: Problem, robots: list[str]) -> Problem:
 
 
 def host_problem(host: Host, key: str, message: str) -> Problem:
-    """A problem located where the robot is declared in the inventory (Host.source is "file:line")."""
+    """A problem located at the var `key` where its value was set (a host_vars or group_vars file);
+    else where the robot is declared in the inventory (Host.source is "file:line")."""
+    origin = host.vars.origin(key) if key and hasattr(host.vars, "origin") else None
+    if origin is not None:
+        return origin.problem((key,), message)
     file, _, line = host.source.rpartition(":")
     if not (line.isascii() and line.isdigit()):
         return Problem(host.source or "inventory", None, key, message)
     return Problem(file, int(line), key, message)
+
+
+def _set_at(host: Host, key: str) -> str:
+    """"file:line" where the robot's `key` was set, for naming the other side of a clash."""
+    found = host_problem(host, key, "")
+    return f"{found.file}:{found.line}" if found.line else found.file
 
 
 # ------------------------------------------------------- parsing a release
@@ -283,7 +293,8 @@ def _domain_duplicates(ctx: Context) -> Iterator[Problem]:
         first = seen.setdefault((host.network, host.ros_domain_id), host)
         if first is not host:
             yield host_problem(host, "ros_domain_id", (
-                f"{host.name!r} and {first.name!r} ({first.source}) both use ros_domain_id {host.ros_domain_id} "
+                f"{host.name!r} and {first.name!r} ({_set_at(first, 'ros_domain_id')}) both use ros_domain_id "
+                f"{host.ros_domain_id} "
                 f"on network {host.network!r}: their DDS traffic would mix; give {host.name!r} an unused ID (0-101)"))
 
 

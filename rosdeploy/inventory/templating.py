@@ -106,6 +106,10 @@ class HostVars(Mapping[str, Any]):
     def raw(self) -> Mapping[str, Any]:
         return self._raw
 
+    def origin(self, key: str) -> Origin | None:
+        """Where the value in effect was set (the file and key that won the precedence merge)."""
+        return self._origins.get(key)
+
     def __getitem__(self, key: str) -> Any:
         if getattr(_LOCAL, "stack", None):   # inside another var's template: let it report
             return self.value(key)

@@ -560,3 +560,15 @@ def test_command_line_words_that_reach_robots_are_checked_first(argv: list[str],
     from rosdeploy.cli.common import UsageError
     with pytest.raises(UsageError, match=f"argument {option}: "):
         build_parser().parse_args(argv)
+
+
+@pytest.mark.parametrize("where", ["host_vars/r2.yml", "group_vars/lab.yml"])
+def test_a_duplicate_domain_id_is_reported_where_the_id_was_set(capsys: pytest.CaptureFixture, lab: Path,
+                                                                where: str) -> None:
+    hosts = lab / "inventory" / "hosts.yml"     # r2 gets its ID from a vars file, not from hosts.yml
+    hosts.write_text(hosts.read_text().replace("ros_domain_id: 2", "ansible_port: 22"))
+    path = lab / "inventory" / where
+    path.parent.mkdir(exist_ok=True)
+    path.write_text("motd: hello\nros_domain_id: 1\n")
+    code, text = cli(capsys, lab, "check")
+    assert code == 2 and f"{path}:2: ros_domain_id: 'r2' and 'r1' ({hosts}:8) both use ros_domain_id 1" in text, text
