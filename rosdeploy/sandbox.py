@@ -9,8 +9,14 @@ every mutation of a list or dict, and ranges over 100,000 items. On top of it:
 
 - the globals a configuration value has no use for (`lipsum`, `cycler`, `joiner`,
   `namespace`) are gone, so they cannot be a stepping stone either;
-- `*`, `**` and `%` and the padding filters are bounded: `'a' * 10**10`, `9**9**9` or
-  `'%999999999s'` would otherwise take the controller's memory or CPU;
+- `*`, `**`, `%`, `+`, `~`, `str.format`, the str methods and filters that grow a string
+  (`replace`, `join`, `center`, `ljust`, `rjust`, `zfill`, `expandtabs`, `translate`,
+  `indent`, `wordwrap`, `batch`, `slice`) are bounded before they build their result:
+  `'a' * 10**10`, `9**9**9`, `'%999999999s'`, `''|replace('', 'b' * 10000)` or
+  `[[1] * 10**5] * 10**5` would otherwise take the controller's memory or CPU. A list counts
+  by its nested size (its *weight*), not its length;
+- a rendered value (and a rendered template file) may not exceed MAX_LENGTH characters, so a
+  chain of vars that each double the last stops at the first one too long;
 - a *value* (one string of a fleet file or inventory) may hold expressions and `if`, but no
   loop, macro, include or import: those belong in template files.
 
@@ -19,29 +25,69 @@ other template error: a file:key problem, exit 2.
 """
 from __future__ import annotations
 
+import itertools
 import re
+import string
+import types
+from functools import update_wrapper
 from pathlib import Path
-from typing import Any, Callable, Mapping, MutableMapping
+from typing import Any, Callable, Iterable, Mapping, MutableMapping, Sequence
 
 import jinja2
 import jinja2.nodes
-from jinja2.sandbox import ImmutableSandboxedEnvironment, SecurityError
+from jinja2.compiler import CodeGenerator, Frame, optimizeconst
+from jinja2.sandbox import ImmutableSandboxedEnvironment, SandboxedEscapeFormatter, SandboxedFormatter, SecurityError
+from markupsafe import Markup
 
 MAX_LENGTH = 1_000_000          # characters or items one operation may produce
 MAX_POWER_BITS = 4096           # `**` results beyond this are a DoS, not a configuration value
 # A %-format or str.format width/precision of 5+ digits: pads to 10**4+ characters.
 _BIG_FORMAT = re.compile(r"%[-#0 +]*(\d{5,}|\*)|%[-#0 +]*\d*\.\d{5,}|\{[^{}]*:[^{}]*\d{5,}[^{}]*\}")
-_WIDTH_FILTERS = ("center", "indent", "wordwrap", "truncate")
+_WIDTH_FILTERS = ("center", "indent", "wordwrap", "truncate", "batch", "slice")
+_TOO_LONG = f"a value longer than {MAX_LENGTH:,} characters is not allowed"
+_CONTAINERS = (list, tuple, dict, set, frozenset)
 # What a single value may not contain (statements that loop, define code or read other files).
 _VALUE_FORBIDDEN = (jinja2.nodes.For, jinja2.nodes.Macro, jinja2.nodes.CallBlock, jinja2.nodes.Include,
                     jinja2.nodes.Import, jinja2.nodes.FromImport, jinja2.nodes.Extends, jinja2.nodes.Block,
                     jinja2.nodes.FilterBlock)
 
 
+def _bounded_concat(parts: Iterable[str]) -> str:
+    """Template output, joined only when it is at most MAX_LENGTH characters: also stops a loop
+    that would output billions of pieces, after a million of them (all at C speed)."""
+    pieces = list(itertools.islice(parts, MAX_LENGTH + 1))
+    if len(pieces) > MAX_LENGTH or sum(map(len, pieces)) > MAX_LENGTH:
+        raise SecurityError(_TOO_LONG)
+    return "".join(pieces)
+
+
+class _BoundedCodeGenerator(CodeGenerator):
+    """`a ~ b` joins its strings inline, with no environment hook: check each operand as output is
+    (see written()), and the result's length after (never longer than its operands together)."""
+
+    @optimizeconst
+    def visit_Concat(self, node: jinja2.nodes.Concat, frame: Frame) -> None:
+        # CodeGenerator.visit_Concat, with each operand checked before str() and the result after
+        if frame.eval_ctx.volatile:
+            func_name = "(markup_join if context.eval_ctx.volatile else str_join)"
+        elif frame.eval_ctx.autoescape:
+            func_name = "markup_join"
+        else:
+            func_name = "str_join"
+        self.write(f"environment.bounded_text({func_name}((")
+        for arg in node.nodes:
+            self.write("environment.finalize(")
+            self.visit(arg, frame)
+            self.write("), ")
+        self.write(")))")
+
+
 class Sandbox(ImmutableSandboxedEnvironment):
     """ImmutableSandboxedEnvironment with bounded operators and no stepping-stone globals."""
 
-    intercepted_binops = frozenset({"*", "**", "%"})
+    intercepted_binops = frozenset({"*", "**", "%", "+"})
+    code_generator_class = _BoundedCodeGenerator
+    concat = staticmethod(_bounded_concat)
 
     def __init__(self, plain_types: tuple[type, ...] = (), **kwargs: Any) -> None:
         """`plain_types`: frozen dataclasses of plain values whose public fields templates read in
@@ -49,6 +95,7 @@ class Sandbox(ImmutableSandboxedEnvironment):
         of 5,000 robots), which could only ever allow a name without a leading `_` on them."""
         self.plain_types = frozenset(plain_types)
         kwargs.setdefault("undefined", jinja2.StrictUndefined)
+        kwargs.setdefault("finalize", written)
         kwargs.setdefault("autoescape", False)
         super().__init__(**kwargs)
         for name in ("lipsum", "cycler", "joiner", "namespace"):
@@ -56,6 +103,8 @@ class Sandbox(ImmutableSandboxedEnvironment):
         for name in _WIDTH_FILTERS:
             self.filters[name] = _bounded_filter(self.filters[name])
         self.filters["format"] = _checked_format(self.filters["format"])
+        for name, bound in _FILTER_BOUNDS.items():
+            self.filters[name] = bound(self.filters[name])
 
     def make_globals(self, d: MutableMapping[str, Any] | None) -> MutableMapping[str, Any]:
         """A plain dict, not Jinja's ChainMap: every render copies a template's globals twice, and
@@ -72,19 +121,79 @@ class Sandbox(ImmutableSandboxedEnvironment):
         return super().getattr(obj, attribute)
 
     def call_binop(self, context: Any, operator_: str, left: Any, right: Any) -> Any:
-        if operator_ == "*":
+        if operator_ == "+":
+            _check_add(left, right)
+        elif operator_ == "*":
             _check_repeat(left, right)
         elif operator_ == "**":
             _check_power(left, right)
-        elif operator_ == "%" and isinstance(left, str):
-            _check_format(left)
+        elif operator_ == "%" and isinstance(left, (str, bytes)):
+            _check_percent(left, right)
         return self.binop_table[operator_](left, right)
 
+    def call(self, context: Any, obj: Any, /, *args: Any, **kwargs: Any) -> Any:
+        """Every call a template makes: the str/bytes methods that grow a string are checked
+        first (one dict lookup for any other call)."""
+        check = _METHOD_BOUNDS.get(getattr(obj, "__name__", None))
+        if check is not None and isinstance(getattr(obj, "__self__", None), (str, bytes)):
+            args = check(obj.__self__, args, kwargs)
+        return super().call(context, obj, *args, **kwargs)
+
+    @staticmethod
+    def bounded_text(text: str) -> str:
+        """The result of `~` (see _BoundedCodeGenerator)."""
+        if len(text) > MAX_LENGTH:
+            raise SecurityError(_TOO_LONG)
+        return text
+
     def wrap_str_format(self, value: Any) -> Callable[..., str] | None:
-        wrapped = super().wrap_str_format(value)
-        if wrapped is not None:
-            _check_format(str(getattr(value, "__self__", "")))
-        return wrapped
+        """Jinja's own wrapper (called on every attribute read), with a formatter that stops at
+        MAX_LENGTH characters, and no width over 9999 or nested field (`{x:>{w}}`) in a spec."""
+        if not isinstance(value, (types.MethodType, types.BuiltinMethodType)) \
+                or value.__name__ not in ("format", "format_map"):
+            return None
+        f_self: Any = value.__self__
+        if not isinstance(f_self, str):
+            return None
+        _check_str_format(f_self)
+        str_type: type[str] = type(f_self)
+        is_format_map = value.__name__ == "format_map"
+        formatter = (_BoundedEscapeFormatter(self, escape=f_self.escape) if isinstance(f_self, Markup)
+                     else _BoundedFormatter(self))
+
+        def wrapper(*args: Any, **kwargs: Any) -> str:
+            if is_format_map:
+                if kwargs:
+                    raise TypeError("format_map() takes no keyword arguments")
+                if len(args) != 1:
+                    raise TypeError(f"format_map() takes exactly one argument ({len(args)} given)")
+                kwargs = args[0]
+                args = ()
+            return str_type(formatter.vformat(f_self, args, kwargs))
+
+        return update_wrapper(wrapper, value)
+
+
+class _BoundedFormatter(SandboxedFormatter):
+    """Counts the characters it produced: `('{0}' * 10**5).format('a' * 10**5)` stops after the
+    first fields past MAX_LENGTH, not at 10**10 characters."""
+
+    produced = 0
+
+    def vformat(self, format_string: str, args: Sequence[Any], kwargs: Mapping[str, Any]) -> str:
+        self.produced = len(format_string)
+        return super().vformat(format_string, args, kwargs)
+
+    def format_field(self, value: Any, format_spec: str) -> Any:
+        text = super().format_field(written(value), format_spec)
+        self.produced += len(text)
+        if self.produced > MAX_LENGTH:
+            raise SecurityError(_TOO_LONG)
+        return text
+
+
+class _BoundedEscapeFormatter(_BoundedFormatter, SandboxedEscapeFormatter):
+    """The same for Markup.format."""
 
 
 class ContainedLoader(jinja2.FileSystemLoader):
@@ -142,10 +251,63 @@ def describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {str(exc)[:200]}"
 
 
+def weight(value: Any, limit: int = MAX_LENGTH) -> int:
+    """How big `value` is once written out, roughly: a string its length, a list, tuple, set or
+    dict the weights of its items together (at least 1), anything else 1. Counting stops soon after
+    `limit`; a list the value holds many times over is counted once (memoised by id), so
+    `[[1] * 10**5] * 10**5` is 10**10 at once, not after 10**10 steps."""
+    if isinstance(value, (str, bytes)):
+        return len(value)
+    if not isinstance(value, _CONTAINERS):
+        return 1
+    return _weigh(value, limit, {})
+
+
+def _weigh(value: Any, limit: int, seen: dict[int, int]) -> int:
+    if isinstance(value, (str, bytes)):
+        return len(value)
+    if not isinstance(value, _CONTAINERS):
+        return 1
+    known = seen.get(id(value))
+    if known is not None:
+        return known
+    seen[id(value)] = limit + 1       # while counting: a container inside itself is too big
+    total = 0
+    for item in itertools.chain.from_iterable(value.items()) if isinstance(value, dict) else value:
+        total += _weigh(item, limit, seen)
+        if total > limit:
+            break
+    total = max(total, 1)
+    seen[id(value)] = total
+    return total
+
+
+def written(value: Any) -> Any:
+    """Every `{{ value }}` and `~` operand before str(): a list holding the same list many times
+    over (`{% set a = [a, a] %}` 60 times) is small in memory, but 2**60 characters written out."""
+    if isinstance(value, _CONTAINERS) and weight(value) > MAX_LENGTH:
+        raise SecurityError(_TOO_LONG)
+    return value
+
+
+def _refuse_longer(size: int, what: str) -> None:
+    if size > MAX_LENGTH:
+        raise SecurityError(f"{what} would be longer than {MAX_LENGTH:,} characters or items")
+
+
 def _check_repeat(left: Any, right: Any) -> None:
     for seq, count in ((left, right), (right, left)):
-        if isinstance(seq, (str, list, tuple)) and isinstance(count, int) and len(seq) * count > MAX_LENGTH:
-            raise SecurityError(f"repeating a value {count} times would exceed {MAX_LENGTH} items")
+        if isinstance(seq, (str, bytes, list, tuple)) and isinstance(count, int) and count > 0:
+            if len(seq) * count > MAX_LENGTH or weight(seq, MAX_LENGTH // count) * count > MAX_LENGTH:
+                raise SecurityError(f"repeating a value {count} times would exceed {MAX_LENGTH} items")
+
+
+def _check_add(left: Any, right: Any) -> None:
+    if isinstance(left, (str, bytes)) and isinstance(right, (str, bytes)):
+        _refuse_longer(len(left) + len(right), "adding these strings")
+    elif isinstance(left, (list, tuple)) and isinstance(right, (list, tuple)):
+        _refuse_longer(len(left) + len(right), "adding these lists")
+        _refuse_longer(weight(left) + weight(right), "adding these lists")
 
 
 def _check_power(left: Any, right: Any) -> None:
@@ -157,6 +319,111 @@ def _check_power(left: Any, right: Any) -> None:
 def _check_format(text: str) -> None:
     if _BIG_FORMAT.search(text):
         raise SecurityError("a format width or precision over 9999 is not allowed")
+
+
+def _check_str_format(text: str) -> None:
+    """A str.format string: widths as in _check_format, and no replacement field inside a format
+    spec, where `'{x:>{w}}'.format(x='a', w=999999999)` would bring in any width."""
+    _check_format(text)
+    try:
+        nested = any(spec and "{" in spec for _, _, spec, _ in _FORMATTER.parse(text))
+    except ValueError:          # malformed: str.format itself says so
+        return
+    if nested:
+        raise SecurityError("a replacement field inside a format spec ('{x:>{w}}') is not allowed")
+
+
+def _check_percent(text: str | bytes, args: Any) -> None:
+    """`text % args` (and the `format` filter): no width over 9999, and at most MAX_LENGTH
+    characters however often a field repeats a long argument (`'%(a)s' * 10**5 % {'a': long}`)."""
+    if isinstance(text, bytes):
+        text = text.decode("latin-1")
+    _check_format(text)
+    fields = [m for m in _PERCENT_FIELD.finditer(text) if m["kind"] != "%"]
+    if not fields:
+        return
+    positional = max(map(weight, args), default=0) if isinstance(args, tuple) else weight(args)
+    size = len(text)
+    for field in fields:
+        if field["key"] is not None:
+            try:
+                item = weight(args[field["key"]])
+            except Exception:     # not a mapping, or no such key: `%` itself says so
+                item = 0
+        else:
+            item = positional
+        # a number's digits: a float's %f runs to 309 of them before the precision
+        size += item + int(field["width"] or 0) + int(field["precision"] or 0) + 330
+        _refuse_longer(size, "this %-format")
+
+
+def _method_replace(text: str | bytes, args: tuple[Any, ...], kwargs: dict[str, Any]) -> tuple[Any, ...]:
+    if len(args) >= 2:
+        count = args[2] if len(args) > 2 else kwargs.get("count", -1)
+        _refuse_longer(_replaced_size(text, args[0], args[1], count), "this replace")
+    return args
+
+
+def _replaced_size(text: Any, old: Any, new: Any, count: Any) -> int:
+    """The length of text.replace(old, new, count), worked out before replacing."""
+    if not isinstance(text, (str, bytes)) or not isinstance(old, (str, bytes)) \
+            or not isinstance(new, (str, bytes)) or len(new) <= len(old):
+        return 0
+    found = len(text) + 1 if not old else text.count(old)   # type: ignore[arg-type]
+    if isinstance(count, int) and count >= 0:
+        found = min(found, count)
+    return len(text) + found * (len(new) - len(old))
+
+
+def _method_join(sep: str | bytes, args: tuple[Any, ...], kwargs: dict[str, Any]) -> tuple[Any, ...]:
+    if len(args) == 1 and not kwargs:
+        items = list(args[0])
+        _refuse_longer(_joined_size(items, len(sep)), "this join")
+        return (items,)
+    return args
+
+
+def _joined_size(items: list[Any], sep: int) -> int:
+    size = max(len(items) - 1, 0) * sep
+    for item in items:
+        size += weight(item)
+        if size > MAX_LENGTH:
+            break
+    return size
+
+
+def _method_width(text: str | bytes, args: tuple[Any, ...], kwargs: dict[str, Any]) -> tuple[Any, ...]:
+    width = args[0] if args else kwargs.get("width")
+    if isinstance(width, int):
+        _refuse_longer(width, "this padding")
+    return args
+
+
+def _method_expandtabs(text: str | bytes, args: tuple[Any, ...], kwargs: dict[str, Any]) -> tuple[Any, ...]:
+    size = args[0] if args else kwargs.get("tabsize", 8)
+    if isinstance(size, int) and size > 1:
+        tab = "\t" if isinstance(text, str) else b"\t"
+        _refuse_longer(len(text) + text.count(tab) * size, "expanding these tabs")   # type: ignore[arg-type]
+    return args
+
+
+def _method_translate(text: str | bytes, args: tuple[Any, ...], kwargs: dict[str, Any]) -> tuple[Any, ...]:
+    table = args[0] if args else None
+    values = table.values() if isinstance(table, dict) else table if isinstance(table, (list, tuple)) else ()
+    longest = max((len(v) for v in values if isinstance(v, str)), default=1)
+    if longest > 1:
+        _refuse_longer(len(text) * longest, "this translate")
+    return args
+
+
+_FORMATTER = string.Formatter()
+_PERCENT_FIELD = re.compile(r"%(?:\((?P<key>[^()]*)\))?[-#0 +]*(?P<width>\d*)(?:\.(?P<precision>\d*))?[hlL]?"
+                            r"(?P<kind>.)", re.S)
+_METHOD_BOUNDS: dict[str | None, Callable[[Any, tuple[Any, ...], dict[str, Any]], tuple[Any, ...]]] = {
+    "replace": _method_replace, "join": _method_join, "center": _method_width, "ljust": _method_width,
+    "rjust": _method_width, "zfill": _method_width, "expandtabs": _method_expandtabs,
+    "translate": _method_translate,
+}
 
 
 def _bounded_filter(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -171,10 +438,59 @@ def _bounded_filter(func: Callable[..., Any]) -> Callable[..., Any]:
 
 def _checked_format(func: Callable[..., Any]) -> Callable[..., Any]:
     def checked(value: Any, *args: Any, **kwargs: Any) -> Any:
-        _check_format(str(value))
+        _check_percent(str(value), kwargs or args)
         return func(value, *args, **kwargs)
     _copy_markers(func, checked)
     return checked
+
+
+def _bounded_replace(func: Callable[..., Any]) -> Callable[..., Any]:
+    def replace(eval_ctx: Any, s: Any, old: Any, new: Any, count: Any = None) -> Any:
+        _refuse_longer(_replaced_size(str(s), str(old), str(new), count), "this replace")
+        return func(eval_ctx, s, old, new, count)
+    _copy_markers(func, replace)
+    return replace
+
+
+def _bounded_join_filter(func: Callable[..., Any]) -> Callable[..., Any]:
+    def join(eval_ctx: Any, value: Any, d: Any = "", attribute: Any = None) -> Any:
+        items = list(value)
+        if attribute is not None:
+            items = list(map(jinja2.filters.make_attrgetter(eval_ctx.environment, attribute), items))
+        _refuse_longer(_joined_size(items, len(str(d))), "this join")
+        return func(eval_ctx, items, d)
+    _copy_markers(func, join)
+    return join
+
+
+def _bounded_indent(func: Callable[..., Any]) -> Callable[..., Any]:
+    def indent(s: Any, *args: Any, **kwargs: Any) -> Any:
+        width = args[0] if args else kwargs.get("width", 4)
+        pad = len(width) if isinstance(width, str) else width if isinstance(width, int) else 0
+        if pad > 0 and isinstance(s, str):
+            _refuse_longer(len(s) + (len(s.splitlines()) + 2) * pad, "this indent")
+        return func(s, *args, **kwargs)
+    _copy_markers(func, indent)
+    return indent
+
+
+def _bounded_wordwrap(func: Callable[..., Any]) -> Callable[..., Any]:
+    def wordwrap(environment: jinja2.Environment, s: Any, *args: Any, **kwargs: Any) -> Any:
+        width = args[0] if args else kwargs.get("width", 79)
+        wrap = args[2] if len(args) > 2 else kwargs.get("wrapstring")
+        wrap = environment.newline_sequence if wrap is None else wrap
+        if isinstance(s, str) and isinstance(wrap, str) and isinstance(width, int) and width > 0:
+            # each line and the next hold more than `width` characters of s together
+            lines = len(s.splitlines()) + 2 * len(s) // width + 1
+            _refuse_longer(len(s) + lines * len(wrap), "this wordwrap")
+        return func(environment, s, *args, **kwargs)
+    _copy_markers(func, wordwrap)
+    return wordwrap
+
+
+# applied after the width check of _WIDTH_FILTERS
+_FILTER_BOUNDS = {"replace": _bounded_replace, "join": _bounded_join_filter, "indent": _bounded_indent,
+                  "wordwrap": _bounded_wordwrap}
 
 
 def _copy_markers(src: Callable[..., Any], dst: Callable[..., Any]) -> None:

@@ -1,0 +1,178 @@
+"""Values that grow past what one operator check sees: refused quickly as a TemplateError (exit 2, a
+file:key problem), never a hang or an internal MemoryError; ordinary uses still work."""
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+
+import jinja2
+import pytest
+import yaml
+
+from rosdeploy.cli import main
+from rosdeploy.sandbox import Sandbox, render_value, value_template
+
+DATA = Path(__file__).resolve().parent / "data" / "fleet"
+QUICK = 5.0     # seconds: each of these took over 20 s, or 4 GB, before
+OURS = ("is not allowed", "longer than 1,000,000 characters", "would exceed 1000000 items")  # the sandbox's words
+
+
+@pytest.fixture
+def lab(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    shutil.copytree(DATA, tmp_path / "lab")
+    monkeypatch.delenv("ROSDEPLOY_VAULT_PASSWORD", raising=False)
+    monkeypatch.delenv("ROSDEPLOY_VAULT_PASSWORD_FILE", raising=False)
+    return tmp_path / "lab"
+
+
+def cli(capsys: pytest.CaptureFixture, lab: Path, command: str) -> tuple[int, str, float]:
+    began = time.monotonic()
+    password = str(lab / "inventory" / ".vault-password")
+    extra = ["--out", str(lab / "out")] if command == "render" else []
+    code = main([command, str(lab / "fleet.yml"), "--vault-password-file", password, *extra])
+    captured = capsys.readouterr()
+    return code, captured.out + captured.err, time.monotonic() - began
+
+
+def set_env(lab: Path, value: str) -> None:
+    path = lab / "fleet.yml"
+    data = yaml.safe_load(path.read_text())
+    data["services"]["driver"].setdefault("environment", {})["X"] = value
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+
+
+def render(source: str, **variables: object) -> str:
+    return render_value(value_template(Sandbox(), source), variables)
+
+
+def refused(source: str, **variables: object) -> str:
+    began = time.monotonic()
+    with pytest.raises(jinja2.TemplateError) as caught:
+        render(source, **variables)
+    assert time.monotonic() - began < QUICK
+    message = str(caught.value)
+    assert any(words in message for words in OURS), message   # not a MemoryError that happened to be quick
+    return message
+
+
+AMPLIFIERS = [
+    "{{ ('a'*100000)|replace('', 'b'*10000) }}",
+    "{{ ('a'*100000).replace('', 'b'*10000) }}",
+    "{{ ('a'*100000)|replace('a', 'b'*100000) }}",
+    "{{ ('a'*100000)|list|join('b'*100000) }}",
+    "{{ ('b'*100000).join(('a'*100000)|list) }}",
+    "{{ [[1]*100000]*100000 }}",
+    "{{ [('a'*1000,)*1000]*1000 }}",
+    "{{ '{x:>{w}}'.format(x='a', w=999999999) }}",
+    "{{ '{:>{}}'.format('a', 999999999) }}",
+    "{{ '{x:>{w}}'.format_map({'x': 'a', 'w': 999999999}) }}",
+    "{{ ('{0}' * 100000).format('a' * 100000) }}",
+    "{{ ('%(a)s' * 100000) % {'a': 'x' * 100000} }}",
+    "{{ ('%(a)s' * 100000)|format(a='x' * 100000) }}",
+    "{{ 'a'.center(999999999) }}",
+    "{{ 'a'.ljust(999999999) }}",
+    "{{ 'a'.rjust(999999999) }}",
+    "{{ 'a'.zfill(999999999) }}",
+    "{{ ('\t'*1000000).expandtabs(1000000) }}",
+    "{{ ('a'*1000000).translate({97: 'b'*1000000}) }}",
+    "{{ ('\n'*1000000)|indent('b'*1000000, blank=True) }}",
+    "{{ ('\n'*1000000)|indent(1000000, blank=True) }}",
+    "{{ ('a '*500000)|wordwrap(1, wrapstring='b'*1000000) }}",
+    "{{ [1]|batch(999999999, 0)|list }}",
+    "{{ [1]|slice(999999999)|list }}",
+    "{{ ('a'.encode() * 1000000) * 1000 }}",
+    "{% set a = [1, 1] %}" + "{% set a = [a, a] %}" * 60 + "{{ a }}",
+    "{% set a = [1, 1] %}" + "{% set a = [a, a] %}" * 60 + "{{ 'x' ~ a }}",
+    "{% set a = [1, 1] %}" + "{% set a = [a, a] %}" * 60 + "{{ '{}'.format(a) }}",
+    "{% set a = 'ab' %}" + "{% set a = a ~ a %}" * 60 + "{{ a }}",
+    "{% set a = 'ab' %}" + "{% set a = a + a %}" * 60 + "{{ a }}",
+    "{% set a = ['ab'] %}" + "{% set a = a + a %}" * 60 + "{{ a }}",
+]
+
+
+@pytest.mark.parametrize("source", AMPLIFIERS)
+def test_an_amplifying_value_is_refused_quickly(source: str) -> None:
+    refused(source)
+
+
+def test_a_long_output_is_refused_as_too_long() -> None:
+    assert "a value longer than 1,000,000 characters" in refused("{{ a }}{{ a }}", a="x" * 600_000)
+
+
+@pytest.mark.parametrize("source, expect", [
+    ("{{ 'a-b'|replace('-', '_') }}", "a_b"),
+    ("{{ 'a-b'.replace('-', '_') }}", "a_b"),
+    ("{{ 'aaa'|replace('a', 'b', 2) }}", "bba"),
+    ("{{ [1, 2]|join(',') }}", "1,2"),
+    ("{{ ','.join(['a', 'b']) }}", "a,b"),
+    ("{{ [{'n': 'a'}, {'n': 'b'}]|join('-', attribute='n') }}", "a-b"),
+    ("{{ '{:>5}'.format('x') }}", "    x"),
+    ("{{ '{0}-{x}'.format(1, x=2) }}", "1-2"),
+    ("{{ '{x}'.format_map({'x': 3}) }}", "3"),
+    ("{{ [0]*3 }}", "[0, 0, 0]"),
+    ("{{ ([0]*1000000)|length }}", "1000000"),
+    ("{{ 'ab' * 3 }}", "ababab"),
+    ("{{ 1 + 2 }}", "3"),
+    ("{{ 'a' + 'b' }}", "ab"),
+    ("{{ [1] + [2] }}", "[1, 2]"),
+    ("{{ 'a' ~ 1 ~ [2] }}", "a1[2]"),
+    ("{{ '%s-%05d' % ('a', 3) }}", "a-00003"),
+    ("{{ '%(a)s' % {'a': 1} }}", "1"),
+    ("{{ '%-4s|'|format('x') }}", "x   |"),
+    ("{{ 'x'.center(5) ~ 'x'.ljust(2) ~ 'x'.rjust(2) ~ '7'.zfill(3) }}", "  x  x  x007"),
+    ("{{ 'a\tb'.expandtabs(4) }}", "a   b"),
+    ("{{ 'ab'.translate({97: 'xy'}) }}", "xyb"),
+    ("{{ 'a\nb'|indent(2, first=True) }}", "  a\n  b"),
+    ("{{ 'a b c'|wordwrap(2) }}", "a\nb\nc"),
+    ("{{ [1, 2, 3]|batch(2, 0)|list }}", "[[1, 2], [3, 0]]"),
+    ("{{ [1, 2, 3]|slice(2)|list }}", "[[1, 2], [3]]"),
+    ("{% set a = [1] %}{% set a = [a, a] %}{{ a }}", "[[1], [1]]"),
+])
+def test_ordinary_uses_still_work(source: str, expect: str) -> None:
+    assert render(source) == expect
+
+
+def test_a_long_value_within_the_bound_renders() -> None:
+    assert len(render("{{ a }}{{ a }}", a="x" * 400_000)) == 800_000
+    assert len(render("{{ a|replace('x', 'yy') }}", a="x" * 400_000)) == 800_000
+
+
+# ------------------------------------------------------------------ via the CLI
+
+@pytest.mark.parametrize("payload", [
+    "{{ ('a'*100000)|replace('', 'b'*10000) }}",
+    "{{ ('a'*100000)|list|join('b'*100000) }}",
+    "{{ [[1]*100000]*100000 }}",
+    "{{ '{x:>{w}}'.format(x='a', w=999999999) }}",
+])
+@pytest.mark.parametrize("command", ["validate", "check", "render"])
+def test_a_fleet_value_that_amplifies_is_a_clean_problem(capsys: pytest.CaptureFixture, lab: Path,
+                                                         payload: str, command: str) -> None:
+    set_env(lab, payload)
+    code, text, took = cli(capsys, lab, command)
+    assert code == 2, text
+    assert "fleet.yml" in text and "services.driver.environment.X" in text, text
+    assert any(words in text for words in OURS), text
+    assert "Traceback" not in text and "internal error" not in text and "MemoryError" not in text, text
+    assert took < QUICK * 2, took
+    assert not (lab / "out").exists()
+
+
+@pytest.mark.parametrize("link", [
+    # (`'{{ d }}{{ d }}'`, text, is bounded where inventory/templating.py renders text: test_templating_bounds.py)
+    "'{{{{ {p} ~ {p} }}}}'",                     # one expression: kept as its value, not rendered text
+    "'{{{{ {p} + {p} }}}}'",
+    "'{{{{ [{p}, {p}] }}}}'",                    # a list holding the previous one twice
+    "\"{{{{ '{{}}{{}}'.format({p}, {p}) }}}}\"",
+    "\"{{{{ '%s%s' % ({p}, {p}) }}}}\"",
+])
+def test_an_inventory_doubling_chain_fails_fast(capsys: pytest.CaptureFixture, lab: Path, link: str) -> None:
+    lines = ["d0: ab"] + [f"d{i}: " + link.format(p=f"d{i - 1}") for i in range(1, 61)]
+    (lab / "inventory" / "host_vars" / "r2.yml").write_text("\n".join(lines) + "\n")
+    set_env(lab, "{{ vars.d60 if inventory_hostname == 'r2' else 'x' }}")
+    code, text, took = cli(capsys, lab, "validate")
+    assert code == 2, text
+    assert "services.driver.environment.X" in text and "1,000,000 characters" in text, text
+    assert "Traceback" not in text and "internal error" not in text and "MemoryError" not in text, text
+    assert took < QUICK * 2, took
