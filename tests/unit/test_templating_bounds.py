@@ -1,7 +1,6 @@
 """Inventory templates a hostile or careless vars file can write: bounded in time and size (issue 18)."""
 from __future__ import annotations
 
-import shutil
 import time
 from pathlib import Path
 
@@ -10,15 +9,9 @@ import yaml
 
 from rosdeploy.cli import main
 
-DATA = Path(__file__).parent / "data" / "fleet"
+import test_sandbox_bounds
 
-
-@pytest.fixture
-def lab(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    shutil.copytree(DATA, tmp_path / "lab")
-    monkeypatch.delenv("ROSDEPLOY_VAULT_PASSWORD", raising=False)
-    monkeypatch.delenv("ROSDEPLOY_VAULT_PASSWORD_FILE", raising=False)
-    return tmp_path / "lab"
+lab = test_sandbox_bounds.lab     # the fixture: the example fleet copied, the vault variables unset
 
 
 def validate(capsys: pytest.CaptureFixture, lab: Path) -> tuple[int, str, float]:
