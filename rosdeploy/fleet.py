@@ -36,7 +36,7 @@ ENV_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 DEVICE_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
 TAG_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
 USER_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*(:[A-Za-z0-9_][A-Za-z0-9_.-]*)?")
-TOPIC_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
+TOPIC_RE = re.compile(r"(?!.*__)(/[A-Za-z_][A-Za-z0-9_]*)+")   # ROS 2 names: no `__` anywhere
 ABSOLUTE_PATH_RE = re.compile(r"(/[A-Za-z0-9_.@+-]+)+/?")
 # Where rosdeploy mounts things itself (rendered DDS profile, /dev/shm, ROS logs): a bind
 # mount of the user's may not land on or under them.
@@ -303,7 +303,7 @@ _HINTS = {
     ENV_RE: "letters, digits and `_`, not starting with a digit",
     DEVICE_RE: "letters, digits, `_`, `.` and `-` (the key of the device in the robot's inventory `devices`)",
     USER_RE: 'a user name, a uid or uid:gid, e.g. "1000:1000"',
-    TOPIC_RE: "an absolute name of letters, digits and `_` parts, e.g. /joint_states or /camera/image_raw",
+    TOPIC_RE: "an absolute name of letters, digits and `_` parts (no `__`), e.g. /joint_states or /camera/image_raw",
     REMOTE_PATH_RE: "an absolute path or one under ~, of letters, digits, `_`, `.`, `-` and `/` only",
 }
 

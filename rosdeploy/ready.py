@@ -38,7 +38,7 @@ from rosdeploy.yamlsrc import Doc, dotted
 # The comparison keys of a topic condition, as YAML-friendly words.
 OPS = {"is": "==", "is_not": "!=", "at_least": ">=", "at_most": "<=", "above": ">", "below": "<"}
 FIELD_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
-TOPIC_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
+TOPIC_RE = re.compile(r"(?!.*__)(/[A-Za-z_][A-Za-z0-9_]*)+")   # ROS 2 names: no `__` anywhere
 LOCK_PATH_RE = re.compile(r"(~/|/)[A-Za-z0-9_.@+-]+(/[A-Za-z0-9_.@+-]+)*")
 SERVICE_RE = re.compile(r"[a-z0-9][a-z0-9_-]{0,62}")
 

@@ -687,8 +687,8 @@ def _is_peer_address(peer: str) -> bool:
     try:
         ipaddress.ip_address(peer)
         return True
-    except ValueError:
-        return bool(_HOSTNAME.fullmatch(peer))
+    except ValueError:     # digits and dots only are meant as IPv4 (`256.1.1.1`), not as a name
+        return not re.fullmatch(r"[0-9.]+", peer) and bool(_HOSTNAME.fullmatch(peer))
 
 
 def image_var(service: str) -> str:

@@ -292,6 +292,7 @@ def svc(patch: dict) -> dict:
     ({"depends_on": ["navigaton"]}, "depends_on[0]", ["did you mean `navigation`"]),
     ({"depends_on": ["driver"]}, "depends_on[0]", ["cannot depend on itself"]),
     ({"topics": ["joint_states"]}, "topics[0].name", ["absolute"]),
+    ({"topics": ["/a__b"]}, "topics[0].name", ["no `__`"]),      # ROS 2 refuses the name at run time
     ({"topics": [{"name": "/a", "min_rate": 0}]}, "topics[0].min_rate", ["above 0"]),
     ({"topics": [{"name": "/a", "rate": 5}]}, "topics[0].rate", ["did you mean `min_rate`"]),
     ({"user": 1000}, "user", ["quote it"]),

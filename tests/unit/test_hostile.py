@@ -381,7 +381,7 @@ def test_refused_service_values(capsys: pytest.CaptureFixture, lab: Path, name: 
 
 
 @pytest.mark.parametrize("peers", [["a<b>"], ["10.0.0.1; rm -rf /"], ["-oProxyCommand=x"], ["a b"], [""],
-                                   ["x" * 300], ["10.0.0.1", "bad/peer"]])
+                                   ["x" * 300], ["10.0.0.1", "bad/peer"], ["256.1.1.1"], ["10.0.0"]])
 def test_dds_peers_must_be_addresses(capsys: pytest.CaptureFixture, lab: Path, peers: list) -> None:
     (lab / "inventory" / "host_vars" / "r2.yml").write_text(yaml.safe_dump({"dds_peers": peers}))
     refused_everywhere(capsys, lab, "dds_peers")
