@@ -26,7 +26,7 @@ from rosdeploy.images.refs import DIGEST_RE, parse_rate
 from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, ImagePolicy, RobotFile, RollbackPolicy,
                              RolloutPolicy,
                              Service, Topic, frozen_map)
-from rosdeploy.yamlsrc import Doc, KeyPath
+from rosdeploy.yamlsrc import Doc, Encrypted, KeyPath
 
 HEALTH_FROM_IMAGE = "image"
 
@@ -218,6 +218,10 @@ class Reader:
         elif isinstance(value, list):
             for i, item in enumerate(value):
                 self.scan_control_chars(item, kp + (i,))
+        elif isinstance(value, Encrypted):    # left as ciphertext, it would be written out as such
+            self.error(kp, "a `!vault` value is decrypted only in the inventory's vars files: put it in "
+                           "group_vars or host_vars, and pass it to the service with `secrets:`")
+            self._poisoned.add(kp)
         elif isinstance(value, str):
             self._check_text(kp, value, "value")
 

@@ -572,3 +572,9 @@ def test_a_duplicate_domain_id_is_reported_where_the_id_was_set(capsys: pytest.C
     path.write_text("motd: hello\nros_domain_id: 1\n")
     code, text = cli(capsys, lab, "check")
     assert code == 2 and f"{path}:2: ros_domain_id: 'r2' and 'r1' ({hosts}:8) both use ros_domain_id 1" in text, text
+
+
+def test_a_vault_tag_in_the_fleet_file_is_refused_not_written_out(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    fleet = lab / "fleet.yml"     # rendered `X: "garbage"`, ciphertext or not, as plain text before
+    fleet.write_text(fleet.read_text().replace("services:\n", "vars:\n  token: !vault garbage\nservices:\n", 1))
+    refused_everywhere(capsys, lab, "vars.token: a `!vault` value is decrypted only in the inventory's vars files")
