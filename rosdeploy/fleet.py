@@ -11,6 +11,7 @@ so the key reference in the README (The fleet file) and the code read the same.
 """
 from __future__ import annotations
 
+import datetime
 import difflib
 import math
 import os
@@ -131,6 +132,10 @@ def _kind(value: Any) -> str:
         return f"a number ({value})"
     if isinstance(value, str):
         return f"a string ({value!r})"
+    if isinstance(value, (datetime.date, datetime.datetime)):    # YAML reads 2024-01-01 as a date
+        return f"a date ({value.isoformat()}; quote it for text)"
+    if isinstance(value, bytes):
+        return "binary data (!!binary)"
     return "a list" if isinstance(value, list) else "a mapping"
 
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import copy
+import datetime
 import random
 import os
 from pathlib import Path
@@ -199,6 +200,7 @@ def test_inventory_expands_home_and_variables(fleet_dir: Path, monkeypatch: pyte
     ({"version": "latest"}, "version", ["not a release version"]),
     ({"version": ""}, "version", ["not a release version"]),
     ({"version": 1.4}, "version", ["quote it"]),
+    ({"version": datetime.date(2024, 1, 1)}, "version", ["a date (2024-01-01; quote it"]),      # `version: 2024-01-01`
     ({"version": "1.0;reboot"}, "version", ["not a valid image tag"]),
     ({"version": "$(reboot)"}, "version", ["not a valid image tag"]),
     ({"templates": "./no-templates"}, "templates", ["is not a directory"]),
