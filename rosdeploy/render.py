@@ -365,7 +365,7 @@ class Renderer:
                       loader=jinja2.ChoiceLoader(loaders),
                       trim_blocks=True, lstrip_blocks=True,
                       keep_trailing_newline=True, auto_reload=False)
-        env.filters.update(FILTERS)
+        env.add_filters(FILTERS)
         return env
 
     def _user_only_templates(self, builtin: Iterable[str]) -> dict[str, str]:

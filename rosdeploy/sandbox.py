@@ -105,6 +105,16 @@ class Sandbox(ImmutableSandboxedEnvironment):
         self.filters["format"] = _checked_format(self.filters["format"])
         for name, bound in _FILTER_BOUNDS.items():
             self.filters[name] = bound(self.filters[name])
+        self.add_filters({})
+
+    def add_filters(self, filters: Mapping[str, Callable[..., Any]]) -> None:
+        """Add `filters`, and weigh the value every filter gets: `tojson`, `string`, `pprint` and
+        a rosdeploy filter turn a list holding one list many times over (`{% set a = [a, a] %}`)
+        into 2**60 characters without an operator to stop it."""
+        self.filters.update(filters)
+        for name, func in self.filters.items():
+            if not getattr(func, "_weighed", False):
+                self.filters[name] = _weighed_filter(func)
 
     def make_globals(self, d: MutableMapping[str, Any] | None) -> MutableMapping[str, Any]:
         """A plain dict, not Jinja's ChainMap: every render copies a template's globals twice, and
@@ -491,6 +501,19 @@ def _bounded_wordwrap(func: Callable[..., Any]) -> Callable[..., Any]:
 # applied after the width check of _WIDTH_FILTERS
 _FILTER_BOUNDS = {"replace": _bounded_replace, "join": _bounded_join_filter, "indent": _bounded_indent,
                   "wordwrap": _bounded_wordwrap}
+
+
+def _weighed_filter(func: Callable[..., Any]) -> Callable[..., Any]:
+    # A filter marked pass_context/pass_environment/pass_eval_context gets that first, then the value
+    at = 1 if getattr(func, "jinja_pass_arg", None) is not None else 0
+
+    def weighed(*args: Any, **kwargs: Any) -> Any:
+        if len(args) > at and isinstance(args[at], _CONTAINERS):
+            written(args[at])
+        return func(*args, **kwargs)
+    _copy_markers(func, weighed)
+    weighed._weighed = True  # type: ignore[attr-defined]
+    return weighed
 
 
 def _copy_markers(src: Callable[..., Any], dst: Callable[..., Any]) -> None:

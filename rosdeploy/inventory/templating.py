@@ -67,7 +67,7 @@ def _environment() -> Sandbox:
     env = Sandbox(keep_trailing_newline=True)
     env.globals = {"range": env.globals["range"], "dict": dict}
     # A few of Ansible's filters that inventories use for paths and names; all pure.
-    env.filters.update({"basename": posixpath.basename, "dirname": posixpath.dirname, "bool": _bool,
+    env.add_filters({"basename": posixpath.basename, "dirname": posixpath.dirname, "bool": _bool,
                         "regex_replace": lambda v, p, r="": re.sub(p, r, str(v)),
                         "ternary": lambda v, a, b=None: a if v else b})
     return env

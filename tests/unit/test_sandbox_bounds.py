@@ -88,6 +88,10 @@ AMPLIFIERS = [
     "{% set a = 'ab' %}" + "{% set a = a ~ a %}" * 60 + "{{ a }}",
     "{% set a = 'ab' %}" + "{% set a = a + a %}" * 60 + "{{ a }}",
     "{% set a = ['ab'] %}" + "{% set a = a + a %}" * 60 + "{{ a }}",
+    # a filter writes its value out itself, past every operator (hung before)
+    "{% set a = [1, 1] %}" + "{% set a = [a, a] %}" * 60 + "{{ a|tojson }}",
+    "{% set a = [1, 1] %}" + "{% set a = [a, a] %}" * 60 + "{{ a|string|length }}",
+    "{% set a = [1, 1] %}" + "{% set a = [a, a] %}" * 60 + "{{ a|pprint }}",
 ]
 
 
