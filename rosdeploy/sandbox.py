@@ -40,6 +40,7 @@ from jinja2.sandbox import ImmutableSandboxedEnvironment, SandboxedEscapeFormatt
 from markupsafe import Markup
 
 MAX_LENGTH = 1_000_000          # characters or items one operation may produce
+OBJECT_WEIGHT = 64               # what an object other than a string, number or container counts as
 MAX_POWER_BITS = 4096           # `**` results beyond this are a DoS, not a configuration value
 # A %-format or str.format width/precision of 5+ digits: pads to 10**4+ characters.
 _BIG_FORMAT = re.compile(r"%[-#0 +]*(\d{5,}|\*)|%[-#0 +]*\d*\.\d{5,}|\{[^{}]*:[^{}]*\d{5,}[^{}]*\}")
@@ -263,21 +264,27 @@ def describe(exc: BaseException) -> str:
 
 def weight(value: Any, limit: int = MAX_LENGTH) -> int:
     """How big `value` is once written out, roughly: a string its length, a list, tuple, set or
-    dict the weights of its items together (at least 1), anything else 1. Counting stops soon after
-    `limit`; a list the value holds many times over is counted once (memoised by id), so
-    `[[1] * 10**5] * 10**5` is 10**10 at once, not after 10**10 steps."""
+    dict the weights of its items together (at least 1), a number 1, another object OBJECT_WEIGHT.
+    Counting stops soon after `limit`; a list the value holds many times over is counted once
+    (memoised by id), so `[[1] * 10**5] * 10**5` is 10**10 at once, not after 10**10 steps."""
     if isinstance(value, (str, bytes)):
         return len(value)
     if not isinstance(value, _CONTAINERS):
-        return 1
+        return _scalar_weight(value)
     return _weigh(value, limit, {})
+
+
+def _scalar_weight(value: Any) -> int:
+    """A number or None writes out short; any other object (a robot, a service) as its repr, which
+    is not computed here: OBJECT_WEIGHT, so `[host] * 10**6` is not a million characters."""
+    return 1 if value is None or isinstance(value, (int, float)) else OBJECT_WEIGHT
 
 
 def _weigh(value: Any, limit: int, seen: dict[int, int]) -> int:
     if isinstance(value, (str, bytes)):
         return len(value)
     if not isinstance(value, _CONTAINERS):
-        return 1
+        return _scalar_weight(value)
     known = seen.get(id(value))
     if known is not None:
         return known

@@ -92,6 +92,7 @@ AMPLIFIERS = [
     "{% set a = [1, 1] %}" + "{% set a = [a, a] %}" * 60 + "{{ a|tojson }}",
     "{% set a = [1, 1] %}" + "{% set a = [a, a] %}" * 60 + "{{ a|string|length }}",
     "{% set a = [1, 1] %}" + "{% set a = [a, a] %}" * 60 + "{{ a|pprint }}",
+    "{{ ([range(1)] * 1000000)|string|length }}",     # an object writes out longer than 1 character
 ]
 
 
