@@ -37,7 +37,8 @@ ENV_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 DEVICE_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
 TAG_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
 USER_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*(:[A-Za-z0-9_][A-Za-z0-9_.-]*)?")
-TOPIC_RE = re.compile(r"(?!.*__)(/[A-Za-z_][A-Za-z0-9_]*)+")   # ROS 2 names: no `__` anywhere
+TOPIC_RE = readiness.TOPIC_RE     # one rule for a declared topic and a readiness condition's
+GROUP_PREFIX_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
 ABSOLUTE_PATH_RE = re.compile(r"(/[A-Za-z0-9_.@+-]+)+/?")
 # Where rosdeploy mounts things itself (rendered DDS profile, /dev/shm, ROS logs): a bind
 # mount of the user's may not land on or under them.
@@ -53,7 +54,7 @@ _SIZE_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)([kmg])b?", re.IGNORECASE)
 _UNITS = {"ms": 0.001, "s": 1, "m": 60, "h": 3600}
 MAX_LIMIT_BYTES = 2**63 - 1           # Docker keeps memory and log sizes as int64
 MAX_CPUS = 1024
-MAX_KNOWN_HOSTS = 16 << 20            # transport.MAX_KNOWN_HOSTS: what a robot's check reads at most
+MAX_KNOWN_HOSTS = 16 << 20            # bytes: 100,000 robots' keys take ~10 MB; /dev/zero, without end
 MAX_DURATION = 366 * 24 * 3600.0      # a year: no wait, deadline or window is longer
 _SECRET_ENV_REF = re.compile(r"\$\{?ROSDEPLOY_VAULT_PASSWORD")
 _CONTROL = {"\n": "a newline", "\r": "a carriage return", "\0": "a NUL byte"}
@@ -364,18 +365,26 @@ def _positive_duration(r: Reader, kp: KeyPath, value: Any) -> Any:
 
 
 def _known_hosts_file(r: Reader, kp: KeyPath, value: Any) -> Any:
-    """ssh.known_hosts: a regular file (a fifo hangs the read, /dev/zero fills memory); a missing
-    one is each robot's error, as OpenSSH makes it."""
     path = r.local_path(kp, value)
+    problem = known_hosts_problem(path)
+    if problem:
+        raise Invalid(problem)
+    return path
+
+
+def known_hosts_problem(path: str) -> str | None:
+    """Why `path` cannot be a known_hosts file (a fifo hangs the read, /dev/zero fills memory), or
+    None; a missing one is each robot's error, as OpenSSH makes it. For ssh.known_hosts and the
+    inventory's rosdeploy_known_hosts."""
     try:
         info = os.stat(path)
     except OSError:
-        return path
+        return None
     if not stat.S_ISREG(info.st_mode):
-        raise Invalid(f"{path} is not a regular file (a fifo, a device or a directory): give a known_hosts file")
+        return f"{path} is not a regular file (a fifo, a device or a directory): give the path of a known_hosts file"
     if info.st_size > MAX_KNOWN_HOSTS:
-        raise Invalid(f"{path} is larger than {MAX_KNOWN_HOSTS >> 20} MB: that is no known_hosts file")
-    return path
+        return f"{path} is larger than {MAX_KNOWN_HOSTS >> 20} MB: that is no known_hosts file"
+    return None
 
 
 def _duration(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -571,7 +580,7 @@ def _restart(r: Reader, kp: KeyPath, value: Any) -> Any:
 
 
 def _order_by(r: Reader, kp: KeyPath, value: Any) -> Any:
-    return None if value is None else _string(re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*"), "group prefix")(r, kp, value)
+    return None if value is None else _string(GROUP_PREFIX_RE, "group prefix")(r, kp, value)
 
 
 def _mount(r: Reader, kp: KeyPath, value: Any) -> Any:

@@ -30,6 +30,7 @@ from fabric import Config, Connection
 
 from rosdeploy.commands import Command
 from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError
+from rosdeploy.fleet import MAX_KNOWN_HOSTS
 from rosdeploy.model import Host
 
 
@@ -296,7 +297,6 @@ class _RejectUnknown(paramiko.MissingHostKeyPolicy):
         raise paramiko.SSHException(f"Server {hostname!r} not found in known_hosts")
 
 
-MAX_KNOWN_HOSTS = 16 << 20   # bytes: 100,000 robots' keys take ~10 MB; /dev/zero or a runaway file, without end
 
 
 class UnusableKnownHosts(Exception):

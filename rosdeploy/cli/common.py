@@ -145,7 +145,8 @@ def release_word(text: str) -> str:
 
 def group_prefix(text: str) -> str:
     """`--order-by site_`: what the fleet file's rollout.order_by takes."""
-    if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]*", text):
+    from rosdeploy.fleet import GROUP_PREFIX_RE
+    if not GROUP_PREFIX_RE.fullmatch(text):
         raise argparse.ArgumentTypeError(f"{text!r} is not a group prefix: letters, digits, `_`, `.` and `-`, "
                                          "e.g. site_")
     return text

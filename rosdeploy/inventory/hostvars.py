@@ -3,13 +3,12 @@ from __future__ import annotations
 
 import os
 import re
-import stat
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from rosdeploy import suggest
 from rosdeploy.errors import Problem
-from rosdeploy.fleet import REMOTE_PATH_RE
+from rosdeploy.fleet import REMOTE_PATH_RE, known_hosts_problem
 from rosdeploy.inventory.draft import Layer, Origin
 from rosdeploy.inventory.known import (ANSIBLE_VARS, FALSE, HEX4, MODE, NAME, NEAR_MISS_CUTOFF, SERIAL,
                                        SHELL_UNSAFE, SUBSYSTEM, SYMLINK, TRUE, UDEV_KEYS, UDEV_REQUIRED,
@@ -187,23 +186,12 @@ def _to_local_path(value: Any) -> str:
     return _safe_text(os.path.abspath(os.path.expanduser(value)), "a file path")
 
 
-KNOWN_HOSTS_MAX = 16 << 20   # bytes: transport.MAX_KNOWN_HOSTS (not imported: it would load paramiko here)
-
-
 def _to_known_hosts(value: Any) -> str:
-    """A known_hosts path, refused at load when it names something that is not a regular file (a
-    fifo would hang the connection, /dev/zero fill memory; transport refuses them too). A missing
-    file is each robot's error, where it says which key is not found."""
+    """A known_hosts path, refused at load when it cannot be one (fleet.known_hosts_problem)."""
     path = _to_local_path(value)
-    try:
-        info = os.stat(path)
-    except OSError:
-        return path
-    if not stat.S_ISREG(info.st_mode):
-        raise BadValue(f"{path} is not a regular file (a fifo, a device or a directory): give the path of a "
-                       "known_hosts file")
-    if info.st_size > KNOWN_HOSTS_MAX:
-        raise BadValue(f"{path} is larger than {KNOWN_HOSTS_MAX >> 20} MB: that is no known_hosts file")
+    problem = known_hosts_problem(path)
+    if problem:
+        raise BadValue(problem)
     return path
 
 
