@@ -267,10 +267,6 @@ def weight(value: Any, limit: int = MAX_LENGTH) -> int:
     dict the weights of its items together (at least 1), a number 1, another object OBJECT_WEIGHT.
     Counting stops soon after `limit`; a list the value holds many times over is counted once
     (memoised by id), so `[[1] * 10**5] * 10**5` is 10**10 at once, not after 10**10 steps."""
-    if isinstance(value, (str, bytes)):
-        return len(value)
-    if not isinstance(value, _CONTAINERS):
-        return _scalar_weight(value)
     return _weigh(value, limit, {})
 
 
