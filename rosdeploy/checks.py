@@ -350,9 +350,16 @@ def _secret_undefined(ctx: Context, host: Host) -> Iterator[Problem]:
 @rule("secret-not-vaulted", "error", "host", "Secrets come from vault-encrypted files only.",
       "Move the variable into a vault-encrypted vars file.")
 def _secret_not_vaulted(ctx: Context, host: Host) -> Iterator[Problem]:
-    return _secret_findings(ctx, lambda var: var in host.vars and str(host.vars[var]) not in host.secret_values, (
+    return _secret_findings(ctx, lambda var: var in host.vars and not _from_vault(host, var), (
         "{env} takes inventory variable `{var}`, which is plain text for {robots}, not from a vault "
         "file: move it into a vault-encrypted vars file so it is never committed in the clear"))
+
+
+def _from_vault(host: Host, var: str) -> bool:
+    """A vault value, or computed from one (`{{ vault_token|b64encode }}`)."""
+    value = str(host.vars[var])    # read first: which vault var it came from is known once it is templated
+    source = getattr(host.vars, "secret_source", None)
+    return value in host.secret_values or (source is not None and source(var) is not None)
 
 
 @rule("secret-short", "warning", "host", "Secrets are at least 4 characters (shorter ones are not masked in output).",
@@ -474,6 +481,24 @@ def _restart_missing(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
         yield ("services", name, "restart"), (
             f"service {name} of {ROBOTS} has restart policy `{restart}` in the rendered compose.yml: "
             "it stays down after a crash or reboot; set `restart: unless-stopped` (or always)")
+
+
+@rule("compose-ref-undefined", "error", "service",
+      "A service's `secrets:`/`configs:` (passed through `compose:`) name ones the compose.yml defines.",
+      "Hand a vault value over with the service's fleet key `secrets: {ENV: vault_var}` (written to .env), "
+      "a file with `files:`; or define it at the top level of your compose template.")
+def _compose_ref_undefined(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    """Compose refuses the whole file at `up` (`service refers to undefined secret`), on the robot,
+    mid-deploy. The built-in template defines no top-level secrets or configs; a user's may."""
+    for kind, instead in (("secrets", "the service's fleet key `secrets: {ENV: vault_var}` (written to the "
+                                      "robot's .env)"), ("configs", "the fleet key `files:`")):
+        defined = _dig(t.compose, kind)
+        for i, entry in enumerate(_as_list(svc.get(kind))):
+            source = entry.get("source") if isinstance(entry, dict) else entry
+            if not isinstance(source, str) or source not in defined:
+                yield ("services", name, "compose", kind, i), (
+                    f"service {name} of {ROBOTS} uses {kind[:-1]} {source!r}, which the compose.yml does not "
+                    f"define at the top level (compose would refuse the file): use {instead} instead")
 
 
 @rule("log-rotation-missing", "error", "service", "Every service's logs rotate (json-file max-size and max-file).",

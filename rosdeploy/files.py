@@ -23,8 +23,9 @@ import yaml
 
 from rosdeploy import restarts
 from rosdeploy.errors import Problem
+from rosdeploy.inventory.templating import secret_read, secret_reads
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RobotFile
-from rosdeploy.sandbox import render_value, value_template
+from rosdeploy.sandbox import Layered, render_value, value_template
 from rosdeploy.yamlsrc import Doc
 
 FILES_DIR = "files"
@@ -53,14 +54,22 @@ class FileRenderer:
         self._templates: dict[Path, jinja2.Template] = {}
 
     def render(self, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> RobotFiles:
-        scope = {**variables, "vars": variables, "host": host, "inventory_hostname": host.name}
+        names = {"vars": variables, "host": host, "inventory_hostname": host.name}
         out: list[RenderedFile] = []
         stored: dict[str, str] = {}
         secrets: set[str] = set()
         for entry in self.entries:
-            content = self._content(entry, host, scope, problems)
+            with secret_reads() as secret:
+                content = self._content(entry, host, (names, variables), problems)
             if content is None:
                 continue
+            if secret and not entry.secret:
+                problems.append(self._problem(host, entry, f"{secret_read(*min(secret.items()))} would be "
+                                                           "written to this file, which is not "
+                                                           "secret: add `secret: true` to it (mode 0600, masked)"))
+                continue
+            if entry.secret:   # masked in plan's diffs: the vault values, and what was computed from them
+                secrets.update(text for var in secret if isinstance(text := variables.get(var), str))
             mode = 0o600 if entry.secret else 0o644
             plain = RenderedFile(f"{FILES_DIR}/{entry.name}", content, mode=mode, secret=entry.secret)
             copy = restarts.stored(plain, entry.target.rsplit("/", 1)[-1])
@@ -75,7 +84,9 @@ class FileRenderer:
         doc = Doc(self.spec.path, None, self.spec.lines)
         return doc.problem(("files", entry.name, entry.kind), f"robot {host.name!r}: {message}")
 
-    def _content(self, entry: RobotFile, host: Host, scope: Mapping[str, Any], problems: list[Problem]) -> str | None:
+    def _content(self, entry: RobotFile, host: Host, layers: tuple[Mapping[str, Any], ...],
+                 problems: list[Problem]) -> str | None:
+        scope = Layered(*layers)
         if entry.kind == "var":
             if entry.source not in scope:
                 problems.append(self._problem(host, entry, f"inventory variable {entry.source!r} is not defined for "
@@ -94,7 +105,7 @@ class FileRenderer:
                 return None
             return value if isinstance(value, str) else yaml.safe_dump(value, sort_keys=True, default_flow_style=False)
         try:
-            rel = render_value(self.paths[entry.name], scope)
+            rel = render_value(self.paths[entry.name], *layers)
         except jinja2.TemplateError as exc:
             problems.append(self._problem(host, entry, exc.message or str(exc)))
             return None
@@ -106,7 +117,7 @@ class FileRenderer:
             return text
         try:
             template = self._templates.get(path) or self._templates.setdefault(path, self.env.from_string(text))
-            return render_value(template, scope)
+            return render_value(template, *layers)
         except jinja2.TemplateError as exc:
             lineno = getattr(exc, "lineno", None)
             line = f" line {lineno}" if lineno else ""

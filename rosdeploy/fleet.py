@@ -49,6 +49,9 @@ _DOMAIN = (r"(?:localhost|[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
 REGISTRY_RE = re.compile(rf"{_DOMAIN}(?:/{_COMPONENT})*")
 REPOSITORY_RE = re.compile(rf"{_COMPONENT}(?:/{_COMPONENT})*")
+# Docker's reference grammar (distribution/reference NameTotalLengthMax): the whole repository
+# name, registry host included, is at most 255 characters; the tag's 128 is in TAG_RE.
+MAX_IMAGE_NAME = 255
 _DURATION_PART = re.compile(r"([0-9]+(?:\.[0-9]+)?)(ms|h|m|s)")   # ASCII digits only: int("²") fails
 _SIZE_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)([kmg])b?", re.IGNORECASE)
 _UNITS = {"ms": 0.001, "s": 1, "m": 60, "h": 3600}
@@ -458,6 +461,8 @@ def _image(r: Reader, kp: KeyPath, value: Any) -> Any:
             raise Invalid(f"{digest!r} is not an image digest: write repo@sha256:<64 hex digits>, or "
                           "give the repository only and pin the version with `tag:`")
         return f"{_image(r, kp, value)}@{digest}"
+    if len(value) > MAX_IMAGE_NAME:
+        raise Invalid(_long_image_name(value))
     last = value.rsplit("/", 1)[-1]
     if ":" in last:
         repo, tag = value.rsplit(":", 1)
@@ -485,6 +490,11 @@ def _controller_registry(r: Reader, kp: KeyPath, value: Any) -> Any:
         raise Invalid(f"{value!r} is not a registry address: write host[:port], optionally after "
                       "http:// or https://, e.g. http://127.0.0.1:5000")
     return value
+
+
+def _long_image_name(name: str) -> str:
+    return (f"the image name {name[:40]!r}... is {len(name)} characters long: Docker refuses a repository "
+            f"name (registry host and path together) over {MAX_IMAGE_NAME}; shorten it")
 
 
 def _has_registry_host(image: str) -> bool:
@@ -892,9 +902,17 @@ def _check_image_registry(r: Reader, kp: KeyPath, image: Any, registry: Any) -> 
     if own and isinstance(registry, str):
         r.error(kp, f"the image names its own registry ({image.split('/')[0]}) while `registry: {registry}` is set: "
                     "drop the host from the image, or drop `registry:` and fully qualify every image")
+    elif not own and isinstance(registry, str) and _too_long_under(registry, image):
+        r.error(kp, _long_image_name(f"{registry}/{image.split('@')[0]}"))
     elif not own and "registry" not in r.doc.data:
         r.error(kp, f"no `registry:` is set and {image!r} has no registry host: add a top-level "
                     f"`registry: registry.local:5000`, or write the full ref, e.g. docker.io/{image}")
+
+
+def _too_long_under(registry: str, image: str) -> bool:
+    """The name the robot pulls is `registry/image`; an image too long alone was refused when read."""
+    name = image.split("@")[0]
+    return len(name) <= MAX_IMAGE_NAME < len(registry) + 1 + len(name)
 
 
 def _check_dependency(r: Reader, kp: KeyPath, name: str, dep: str, names: list[str], written: Any) -> None:

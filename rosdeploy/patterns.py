@@ -18,13 +18,18 @@ stricter: an *exclusion* that matches nothing is an error (a misspelt
 and so is a pattern that selects no robot at all (Ansible runs nothing and
 exits 0). `localhost` is not Ansible's implicit localhost: rosdeploy deploys
 over SSH to inventory hosts only, so an absent localhost is refused with how to
-add it.
+add it. A `[` or `]` without its pair is refused (Ansible's split drops it, so
+`~r[` selected every host starting with r), and so is a `~regex` whose matching
+takes more than REGEX_BUDGET seconds (catastrophic backtracking, `~(a+)+b`).
 """
 from __future__ import annotations
 
 import fnmatch
 import re
-from typing import Callable, Mapping, Sequence
+import signal
+import threading
+from contextlib import contextmanager
+from typing import Callable, Iterator, Mapping, Sequence
 
 from rosdeploy import suggest
 from rosdeploy.errors import InventoryError, Problem
@@ -34,8 +39,18 @@ _GLOB_CHARS = frozenset("*?[")
 _SUBSCRIPT = re.compile(r"^(?P<base>.+)\[(?:(?P<index>-?[0-9]+)|(?P<start>[0-9]+):(?P<end>[0-9]*))\]$")
 # Ansible's split on ':' keeps a bracketed expression whole (`web[0:2]:db`).
 _TERM = re.compile(r"(?:[^\s:\[\]]|\[[^\]]*\])+")
+# A term as written, a stray bracket kept: `~r[:web` is the words `~r[` and `web`.
+_WORD = re.compile(r"(?:[^\s:\[\]]|\[[^\]]*\]|[\[\]])+")
 _HOST_PORT = re.compile(r"[^:\[\]\s]+:[0-9]+")
 _LOCALHOST = ("localhost", "127.0.0.1", "::1")
+# Seconds all the matching of one pattern may take. A `~regex` is Python's `re`, as in Ansible, so
+# `~(a+)+b` backtracks exponentially on a long host name; normal patterns over thousands of hosts
+# take milliseconds, so one second is far from any real selection and well within a prompt reply.
+REGEX_BUDGET = 1.0
+
+
+class _OverBudget(Exception):
+    """Raised by the SIGALRM handler inside a runaway match (the regex engine checks for signals)."""
 
 
 def select(pattern: str | None, hosts: Sequence[str], groups: Mapping[str, Sequence[str]],
@@ -53,8 +68,10 @@ def select(pattern: str | None, hosts: Sequence[str], groups: Mapping[str, Seque
     if not terms:
         what = "names no host or group (a `[` without its `]`?)" if pattern.strip(" ,:") else "is empty"
         raise _error(where, f"pattern {pattern!r} {what}: give host or group names, e.g. 'site_north:!amr-n2'")
+    _refuse_stray_bracket(pattern, where)
     unmatched: list[Problem] = []
-    chosen = _evaluate(terms, hosts, groups, where, unmatched)
+    with _budget(pattern, where):
+        chosen = _evaluate(terms, hosts, groups, where, unmatched)
     if warnings is not None:
         warnings.extend(unmatched)
     if not chosen:
@@ -78,6 +95,47 @@ def split(pattern: str) -> list[str]:
     else:
         parts = _TERM.findall(pattern)
     return [p.strip() for p in parts if p.strip()]
+
+
+def _refuse_stray_bracket(pattern: str, where: str) -> None:
+    """Ansible's ':' split silently drops a `[` or `]` it cannot pair, so `~r[` becomes `~r` and
+    selects every host starting with r: more robots than written. Refuse it instead."""
+    if "," in pattern or not set("[]") & set(_TERM.sub("", pattern)):
+        return
+    for word in _WORD.findall(pattern):
+        if word.lstrip("&!").startswith("~"):
+            _matcher(word.lstrip("&!"), where)      # an invalid regex is named with the regex error
+    raise _error(where, f"pattern {pattern!r} has a `[` or `]` without its pair (Ansible would drop it and "
+                        f"select other hosts than written): close the bracket, e.g. 'site_north[0:2]'")
+
+
+@contextmanager
+def _budget(pattern: str, where: str) -> Iterator[None]:
+    """Interrupt matching that runs past REGEX_BUDGET, via SIGALRM (the CLI selects in the main thread;
+    elsewhere, or when a timer is already armed, nothing is bounded, as signals can only go there)."""
+    usable = (hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
+              and "~" in pattern and signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0))
+    if not usable:
+        yield
+        return
+    armed = [True]      # cleared before disarming: a signal landing in `finally` must not raise there
+
+    def expire(signum: int, frame: object) -> None:
+        if armed[0]:
+            raise _OverBudget
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, REGEX_BUDGET)
+        yield
+    except _OverBudget:
+        raise _error(where, f"pattern {pattern!r} took more than {REGEX_BUDGET:g} s to match the host names "
+                            "(a regular expression that backtracks, like `(a+)+`): simplify the regex, "
+                            "or use a glob such as 'amr-*'") from None
+    finally:
+        armed[0] = False
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, signal.SIG_DFL if previous is None else previous)
 
 
 def _evaluate(terms: list[str], hosts: Sequence[str], groups: Mapping[str, Sequence[str]],

@@ -25,12 +25,14 @@ import jinja2
 import yaml
 
 from rosdeploy import restarts, rotation
+from rosdeploy.checks import host_problem, parse_env
 from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError
 from rosdeploy.files import FileRenderer
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
+from rosdeploy.inventory.templating import secret_read, secret_reads
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
-from rosdeploy.sandbox import ContainedLoader, Sandbox, describe, render_value, value_template
+from rosdeploy.sandbox import ContainedLoader, Layered, Sandbox, describe, render_value, value_template
 from rosdeploy.yamlsrc import Doc
 
 # rosdeploy/templates is a link to the repo's top-level templates/ in a checkout, and a real
@@ -280,14 +282,9 @@ def _size_bytes(text: str) -> int:
         return 0
 
 
-def _host_where(host: Host) -> tuple[str, int | None]:
-    file, _, line = host.source.rpartition(":")
-    return (file, int(line)) if file and line.isascii() and line.isdigit() else (host.source or "inventory", None)
-
-
 def _host_problem(host: Host, key: str, message: str) -> Problem:
-    file, line = _host_where(host)
-    return Problem(file, line, key, f"robot {host.name!r}: {message}")
+    """At the var `key` where its value was set, else where the robot is declared."""
+    return host_problem(host, key, f"robot {host.name!r}: {message}")
 
 
 def _with_mounts(svc: ServiceView, mounts: tuple[str, ...]) -> ServiceView:
@@ -476,13 +473,12 @@ class Renderer:
         """(as written, as compose reads it with the .env) for the built-in compose template."""
         if not self.builtin_compose:
             return None
-        from rosdeploy.checks import parse_env
         env = parse_env(next(f.content for f in files if f.name == ENV_FILE))
         return compose_data(context), compose_data(context, env)
 
     def _context(self, host: Host, problems: list[Problem]) -> dict[str, Any]:
         """What the templates see; every problem found on the way goes to `problems`."""
-        spec, variables = self.spec, {**self.spec.vars, **host.vars}
+        spec, variables = self.spec, Layered(host.vars, self.spec.vars)
         return {
             "spec": spec, "host": host, "vars": variables, "project": spec.project, "version": spec.version,
             "network_mode": spec.network_mode, "rmw": spec.rmw, "rmw_implementation": self.rmw_implementation,
@@ -490,22 +486,39 @@ class Renderer:
             "shm_size": spec.shm_size, "log_max_size": spec.log_max_size, "log_max_file": spec.log_max_file,
             "ros_domain_id": host.ros_domain_id, "fastdds_ports": self._fastdds_ports(host.ros_domain_id),
             "services": [self._service(st, host, variables, problems) for st in self.statics],
-            "secrets": self._secrets(host, problems), "peers": self._peers(host, variables, problems),
-            "image_vars": self.image_vars, "udev": self._udev(host, problems), "dds_source": f"./{self.dds_file}",
-            "logs_glob": f"{self._deploy_root(host, variables)}/{spec.project}/logs/*/*.log",
-            **self._tunables(host, variables, problems),
+            "secrets": self._secrets(host, problems), "image_vars": self.image_vars, "udev": self._udev(host, problems),
+            "dds_source": f"./{self.dds_file}", **self._read_vars(host, variables, problems),
             **rotation.context(spec.project, spec.log_rotate_every),
         }
+
+    def _read_vars(self, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> dict[str, Any]:
+        """The inventory vars rosdeploy itself writes into the (not secret) DDS profile, compose.yml
+        and logrotate config: refused if they come from a vault."""
+        with secret_reads() as secret:
+            out = {"peers": self._peers(host, variables, problems),
+                   "logs_glob": f"{self._deploy_root(host, variables)}/{self.spec.project}/logs/*/*.log",
+                   **self._tunables(host, variables, problems)}
+        problems.extend(_host_problem(host, var, f"{secret_read(var, source)} is written to "
+                                                 "non-secret files (DDS profile, compose.yml, logrotate): set it "
+                                                 "in a plain vars file") for var, source in sorted(secret.items()))
+        return out
 
     def _service(self, st: _Static, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> ServiceView:
         svc = st.service
         gpu = svc.gpu and host.gpu
         env = dict(GPU_ENV) if gpu else {}
         env.update(st.environment)
+        derived = set()
         for key, template in st.templated.items():
             where = ("services", svc.name, "environment", key)
-            env[key] = self._render_value(template, host, variables, where, problems)
-        self._check_env_leaks(host, svc.name, env, problems)
+            with secret_reads() as secret:
+                env[key] = self._render_value(template, host, variables, where, problems)
+            if secret:
+                derived.add(key)
+                problems.append(self._problem(where, f"robot {host.name!r}: this value reads "
+                                                     f"{secret_read(*min(secret.items()))} into compose.yml, which "
+                                                     f"is not secret; {_TO_SECRETS.format(key=key)}"))
+        self._check_env_leaks(host, svc.name, {k: v for k, v in env.items() if k not in derived}, problems)
         udev_by_path = {f"/dev/{u.symlink}": u for u in host.udev}
         devices, groups = [], set()
         for logical in svc.devices:
@@ -538,8 +551,8 @@ class Renderer:
     def _render_value(self, template: jinja2.Template, host: Host, variables: Mapping[str, Any],
                       key: tuple[str, ...], problems: list[Problem]) -> str:
         try:
-            return render_value(template, {**variables, "vars": variables, "host": host,
-                                           "inventory_hostname": host.name})
+            return render_value(template, {"vars": variables, "host": host, "inventory_hostname": host.name},
+                                variables)
         except jinja2.TemplateError as exc:
             problems.append(self._problem(key, f"robot {host.name!r}: {exc.message}"))
             return ""
@@ -550,7 +563,7 @@ class Renderer:
         for key in sorted(k for k, value in env.items() if any(s in value for s in secrets)):
             problems.append(self._problem(("services", service, "environment", key), (
                 f"robot {host.name!r}: this value copies a vault secret into compose.yml, which is not secret; "
-                f"move {key} to the service's `secrets:` ({key}: <inventory var>) so it goes to .env only")))
+                f"{_TO_SECRETS.format(key=key)}")))
 
     def _secrets(self, host: Host, problems: list[Problem]) -> list[tuple[str, str]]:
         """(env name, value) for every secret env of every service, sorted; values validated for .env."""
@@ -643,7 +656,8 @@ class Renderer:
 
     def _file(self, out: str, template: jinja2.Template, context: Mapping[str, Any], host: Host) -> RenderedFile:
         try:
-            content = template.render(context)
+            with secret_reads() as secret:
+                content = template.render(context)
         except (jinja2.TemplateError, _Rejected) as exc:
             raise RenderError([self._template_problem(exc, template, host)]) from exc
         except Exception as exc:   # 1/0, recursion, a bound: the template's fault, never an internal error
@@ -651,6 +665,11 @@ class Renderer:
                                                       exc.__traceback__)]) from exc
         if out == ENV_FILE:
             return RenderedFile(out, content, mode=0o600, secret=bool(context["secrets"]))
+        if secret:
+            raise RenderError([_host_problem(host, var, f"template {template.name} writes "
+                                                        f"{secret_read(var, source)} into {out}, which is not secret; "
+                                                        "pass it with `secrets:` so it goes to .env only")
+                               for var, source in sorted(secret.items())])
         return RenderedFile(out, content)
 
     def _template_problem(self, exc: Exception, template: jinja2.Template, host: Host,
@@ -676,6 +695,9 @@ class Renderer:
         if leaked:
             raise RenderError([_host_problem(host, "", f"a secret value would be written to {name}; pass it with "
                                                        "`secrets:` so it goes to .env only") for name in leaked])
+
+
+_TO_SECRETS = "move {key} to the service's `secrets:` ({key}: <inventory var>) so it goes to .env only"
 
 
 _HOSTNAME = re.compile(r"(?=.{1,253}\Z)[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?"

@@ -31,7 +31,7 @@ import string
 import types
 from functools import update_wrapper
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, MutableMapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, MutableMapping, Sequence
 
 import jinja2
 import jinja2.nodes
@@ -243,10 +243,57 @@ def value_template(env: jinja2.Environment, source: str) -> jinja2.Template:
     return env.from_string(tree)
 
 
-def render_value(template: jinja2.Template, variables: Mapping[str, Any]) -> str:
-    """Render one value; any failure inside (a blocked access, 1/0, recursion) is a TemplateError."""
+class Layered(Mapping[str, Any]):
+    """Mappings seen as one, the first that has a name wins, read one name at a time: nothing is
+    copied, so an inventory var (templated when read) is templated only if something reads it,
+    and a reader that watches which vars are read (inventory.templating.secret_reads) sees it."""
+
+    def __init__(self, *layers: Mapping[str, Any]) -> None:
+        self._layers = layers
+
+    def __getitem__(self, name: str) -> Any:
+        for layer in self._layers:
+            if name in layer:
+                return layer[name]
+        raise KeyError(name)
+
+    def __contains__(self, name: object) -> bool:
+        return any(name in layer for layer in self._layers)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(dict.fromkeys(itertools.chain.from_iterable(reversed(self._layers))))
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+    def __repr__(self) -> str:     # `{{ vars }}`: the same text on every run (no object address)
+        return f"<{len(self)} vars>"
+
+
+class _Names(dict):
+    """A template's names, looked up in a Layered when used: Jinja reads a shared parent context
+    with `in` and `[]` only, where Template.render would copy every var into a dict first."""
+
+    def __init__(self, names: Layered) -> None:
+        super().__init__()
+        self._names = names
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._names
+
+    def __getitem__(self, name: str) -> Any:
+        return self._names[name]
+
+    def get(self, name: str, default: Any = None) -> Any:
+        return self._names.get(name, default)
+
+
+def render_value(template: jinja2.Template, *layers: Mapping[str, Any]) -> str:
+    """Render one value with the names of `layers` (the first that has a name wins), each read
+    only if used; any failure inside (a blocked access, 1/0, recursion) is a TemplateError."""
+    context = template.new_context(_Names(Layered(*layers, template.globals)), shared=True)
     try:
-        return template.render(variables)
+        return template.environment.concat(template.root_render_func(context))
     except jinja2.TemplateError:
         raise
     except Exception as exc:   # user code failing is a user error, never an internal one
@@ -501,9 +548,50 @@ def _bounded_wordwrap(func: Callable[..., Any]) -> Callable[..., Any]:
     return wordwrap
 
 
+def _bounded_sum(func: Callable[..., Any]) -> Callable[..., Any]:
+    """`lists|sum(start=[])` is Python's sum: each `+` copies the total so far, so 10**5 one-item
+    lists took 10 s (quadratic), and the result was weighed only once written. A list or tuple
+    start is weighed with the items first, then joined in one pass; any other start is func's."""
+    def sum_(environment: jinja2.Environment, iterable: Any, attribute: Any = None, start: Any = 0) -> Any:
+        if not isinstance(start, (list, tuple)):
+            return func(environment, iterable, attribute, start)
+        items = list(itertools.islice(iterable, MAX_LENGTH + 1))
+        _refuse_longer(len(items), "this sum")
+        if attribute is not None:
+            items = list(map(jinja2.filters.make_attrgetter(environment, attribute), items))
+        return _concatenated(start, items)
+    _copy_markers(func, sum_)
+    return sum_
+
+
+def _concatenated(start: list[Any] | tuple[Any, ...], items: list[Any]) -> list[Any] | tuple[Any, ...]:
+    """What sum(items, start) gives for sequences (a TypeError for a mixed one, as `[] + ()` is),
+    refused before anything is copied when it would exceed MAX_LENGTH items or characters."""
+    kind = list if isinstance(start, list) else tuple
+    name = kind.__name__
+    for item in items:
+        if not isinstance(item, kind):
+            raise TypeError(f'can only concatenate {name} (not "{type(item).__name__}") to {name}')
+    _refuse_longer(len(start) + sum(map(len, items)), "this sum")
+    elements = itertools.chain(start, itertools.chain.from_iterable(items))
+    _refuse_longer(_weigh_each(elements), "this sum")
+    return kind(itertools.chain(start, itertools.chain.from_iterable(items)))
+
+
+def _weigh_each(values: Iterable[Any]) -> int:
+    """The weight of a list of `values` without building it (and without the 1 an empty list adds)."""
+    seen: dict[int, int] = {}
+    total = 0
+    for value in values:
+        total += _weigh(value, MAX_LENGTH, seen)
+        if total > MAX_LENGTH:
+            break
+    return total
+
+
 # applied after the width check of _WIDTH_FILTERS
 _FILTER_BOUNDS = {"replace": _bounded_replace, "join": _bounded_join_filter, "indent": _bounded_indent,
-                  "wordwrap": _bounded_wordwrap}
+                  "wordwrap": _bounded_wordwrap, "sum": _bounded_sum}
 
 
 def _weighed_filter(func: Callable[..., Any]) -> Callable[..., Any]:

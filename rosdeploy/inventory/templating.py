@@ -14,6 +14,7 @@ able to run code: Jinja2's SandboxedEnvironment (no `__globals__`, no
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import posixpath
 import re
@@ -25,7 +26,7 @@ import jinja2
 from rosdeploy.sandbox import MAX_LENGTH, Sandbox
 
 from rosdeploy.errors import InventoryError, Problem
-from rosdeploy.inventory.draft import Origin
+from rosdeploy.inventory.draft import Origin, strings
 from rosdeploy.yamlsrc import Unsafe
 
 _MARKERS = ("{{", "{%", "{#")
@@ -77,6 +78,28 @@ _ENV = _environment()
 _LOCAL = threading.local()
 
 
+@contextlib.contextmanager
+def secret_reads() -> Iterator[dict[str, str]]:
+    """While active, collects the vars read (from outside any var's own template) whose value
+    came from a vault, directly or through other vars: var -> the vault var it came from.
+
+    A renderer reads vars through this to know a file or value is derived from a secret even
+    when its text no longer contains the secret (`{{ token|upper }}`, a slice, a hash)."""
+    outer = getattr(_LOCAL, "reads", None)
+    found: dict[str, str] = {}
+    _LOCAL.reads = found
+    try:
+        yield found
+    finally:
+        _LOCAL.reads = outer
+
+
+def secret_read(var: str, source: str) -> str:
+    """How a secret var was read, for messages: `vault var 'token'`, or `var 'p' (computed from
+    vault var 'token')`."""
+    return f"vault var {var!r}" if var == source else f"var {var!r} (computed from vault var {source!r})"
+
+
 def is_template(value: Any) -> bool:
     return isinstance(value, str) and not isinstance(value, Unsafe) and any(m in value for m in _MARKERS)
 
@@ -97,6 +120,9 @@ class HostVars(Mapping[str, Any]):
         self._done: dict[str, Any] = {}
         self._too_deep: dict[str, TemplateFailed] = {}
         self._overrides: dict[str, Any] = {}
+        # var -> the vault var its value came from: the vault vars themselves, then every var
+        # whose template read one (marked as it is templated, see _note)
+        self._secret_from = {key: key for key in self._raw if _from_vault(self._raw[key], origins.get(key))}
 
     def override(self, key: str, value: Any) -> None:
         """A value rosdeploy normalised (an absolute path): what every reader then sees."""
@@ -109,6 +135,10 @@ class HostVars(Mapping[str, Any]):
     def origin(self, key: str) -> Origin | None:
         """Where the value in effect was set (the file and key that won the precedence merge)."""
         return self._origins.get(key)
+
+    def secret_source(self, key: str) -> str | None:
+        """The vault var that `key`'s value came from, once `key` was read; None if none."""
+        return self._secret_from.get(key)
 
     def __getitem__(self, key: str) -> Any:
         if getattr(_LOCAL, "stack", None):   # inside another var's template: let it report
@@ -123,6 +153,13 @@ class HostVars(Mapping[str, Any]):
 
     def value(self, key: str) -> Any:
         """The templated value; TemplateFailed (naming the var) if it cannot be templated."""
+        result = self._value(key)
+        source = self._secret_from.get(key)
+        if source is not None:
+            _note(key, source)
+        return result
+
+    def _value(self, key: str) -> Any:
         if key in self._overrides:
             return self._overrides[key]
         if key in self._done:
@@ -138,6 +175,9 @@ class HostVars(Mapping[str, Any]):
         self._done[key] = value
         return value
 
+    def __contains__(self, key: object) -> bool:
+        return key in self._raw      # Mapping's own would template the value (and count a read)
+
     def __iter__(self) -> Iterator[str]:
         return iter(self._raw)
 
@@ -148,10 +188,10 @@ class HostVars(Mapping[str, Any]):
         return f"HostVars({self._name!r}, {len(self._raw)} vars)"
 
     def _template(self, key: str, value: Any) -> Any:
-        stack: list[str] = getattr(_LOCAL, "stack", None) or []
-        if key in stack:
-            raise TemplateFailed(key, f"recursive loop: {' -> '.join([*stack, key])}")
-        _LOCAL.stack = [*stack, key]
+        stack: list[tuple[HostVars, str]] = getattr(_LOCAL, "stack", None) or []
+        if any(host is self and name == key for host, name in stack):   # `is`: == would read every var
+            raise TemplateFailed(key, f"recursive loop: {' -> '.join([*(k for _, k in stack), key])}")
+        _LOCAL.stack = [*stack, (self, key)]
         try:
             return _render(value, _Scope(self), key)
         finally:
@@ -165,6 +205,27 @@ class HostVars(Mapping[str, Any]):
 
     def knows(self, name: str) -> bool:
         return name in self._magic or name in self._raw
+
+
+def _from_vault(value: Any, origin: Origin | None) -> bool:
+    if origin is None:
+        return False
+    if origin.secret:      # a vault-encrypted vars file: every value in it
+        return True
+    return bool(origin.inline_secrets) and any(text in origin.inline_secrets for _, text in strings(value, ()))
+
+
+def _note(key: str, source: str) -> None:
+    """A var from a vault was read: the var whose template read it is secret too, or, at the
+    top, the reader that collects secret_reads() learns of it."""
+    stack = getattr(_LOCAL, "stack", None)
+    if stack:
+        reader, name = stack[-1]
+        reader._secret_from.setdefault(name, source)
+        return
+    reads = getattr(_LOCAL, "reads", None)
+    if reads is not None:
+        reads.setdefault(key, source)
 
 
 class _Scope(dict):

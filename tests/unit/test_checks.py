@@ -224,6 +224,24 @@ def test_restart_present(restart: str) -> None:
     silent("restart-missing", restart=restart)
 
 
+@pytest.mark.parametrize("kind, entry", [("secrets", "token"), ("configs", {"source": "params", "target": "/p"}),
+                                         ("secrets", {"target": "/run/x"})])
+def test_compose_ref_undefined(kind: str, entry: Any) -> None:
+    """The built-in template defines no top-level secrets or configs: compose would refuse the file."""
+    found = fires("compose-ref-undefined", **{kind: [entry]})
+    assert found.key == f"services.driver.compose.{kind}[0]", found.key
+    assert "does not define at the top level" in found.message and "fleet key" in found.message
+
+
+def test_compose_ref_defined_by_a_user_template() -> None:
+    h = host()
+    svc = {**GOOD_SERVICE, "secrets": ["token", {"source": "token"}], "configs": [{"source": "params"}]}
+    compose = yaml.safe_dump({"services": {"driver": svc}, "secrets": {"token": {"environment": "TOKEN"}},
+                              "configs": {"params": {"file": "./params.yaml"}}})
+    silent("compose-ref-undefined", releases=[release(h, compose=compose)])
+    silent("compose-ref-undefined")
+
+
 @pytest.mark.parametrize("logging", [None, {"driver": "json-file"},
                                      {"driver": "json-file", "options": {"max-size": "1m"}},
                                      {"driver": "syslog"}])

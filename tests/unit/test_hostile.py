@@ -363,6 +363,9 @@ SERVICE_REFUSED = {
     "memory 0m": ({"resources": {"memory": "0m"}}, "services.driver.resources.memory"),
     "memory 1k": ({"resources": {"memory": "1k"}}, "services.driver.resources.memory"),
     "memory negative": ({"resources": {"memory": "-1m"}}, "services.driver.resources.memory"),
+    "image name of 4096 characters": ({"image": "lab/" + "a" * 4092}, "services.driver.image: the image name"),
+    "compose secret never defined": ({"compose": {"secrets": ["token"]}}, "services.driver.compose.secrets[0]"),
+    "compose config never defined": ({"compose": {"configs": [{"source": "c"}]}}, "services.driver.compose.configs"),
 }
 
 

@@ -131,3 +131,30 @@ def test_split_like_ansible():
     assert split("web[0:2]:db:~x.*:!y") == ["web[0:2]", "db", "~x.*", "!y"]
     assert split("a:b,c") == ["a:b", "c"]      # a comma present: split on commas only
     assert split("amr-n1:22") == ["amr-n1:22"]  # host:port is one address
+
+
+def test_a_backtracking_regex_is_stopped_and_named(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`~(a+)+b` against a long name backtracks exponentially in `re` (as in Ansible): here about
+    9 s unbounded; the budget stops it with an input error that says what to do."""
+    import time
+
+    from rosdeploy import patterns
+    monkeypatch.setattr(patterns, "REGEX_BUDGET", 0.2)
+    began = time.monotonic()
+    with pytest.raises(InventoryError, match=r"'~\(a\+\)\+b' took more than 0.2 s .* simplify the regex"):
+        select("~(a+)+b", (*HOSTS, "a" * 28), GROUPS)
+    assert time.monotonic() - began < 2
+    assert names("~amr-[ns]1") == ["amr-n1", "amr-s1"]      # the timer and handler are gone afterwards
+
+
+@pytest.mark.parametrize("pattern", ["~amr-n[", "~amr-n[:bench-1", "bench-1:~amr-n[", "bench-1,~amr-n["])
+def test_an_unclosed_bracket_in_a_regex_is_refused_not_dropped(pattern: str) -> None:
+    """Ansible's ':' split drops the stray `[`, so `~amr-n[` selected every amr-n robot."""
+    with pytest.raises(InventoryError, match=r"invalid regular expression '~amr-n\[': unterminated character set"):
+        names(pattern)
+
+
+def test_a_stray_bracket_in_a_name_is_refused() -> None:
+    with pytest.raises(InventoryError, match=r"'site_north\]:bench-1' has a `\[` or `\]` without its pair"):
+        names("site_north]:bench-1")
+    assert names("~amr-[n]1:~bench-[1]") == ["amr-n1", "bench-1"]      # paired brackets are fine
