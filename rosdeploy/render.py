@@ -559,7 +559,7 @@ class Renderer:
 
     def _check_env_leaks(self, host: Host, service: str, env: Mapping[str, str], problems: list[Problem]) -> None:
         """A vault value copied into an `environment:` value: reported at the fleet key that copies it."""
-        secrets = [s for s in host.secret_values if len(s) >= MIN_LEAK_CHECK]
+        secrets = _searched(host)
         for key in sorted(k for k, value in env.items() if any(s in value for s in secrets)):
             problems.append(self._problem(("services", service, "environment", key), (
                 f"robot {host.name!r}: this value copies a vault secret into compose.yml, which is not secret; "
@@ -689,7 +689,7 @@ class Renderer:
     @staticmethod
     def _check_leaks(host: Host, files: Iterable[RenderedFile]) -> None:
         """compose.yml and the other files are not secret: a vault value in them is a leak."""
-        secrets = [s for s in host.secret_values if len(s) >= MIN_LEAK_CHECK]
+        secrets = _searched(host)
         leaked = sorted({f.name for f in files if f.name != ENV_FILE and not f.secret
                          for s in secrets if s in f.content})
         if leaked:
@@ -711,6 +711,13 @@ def _is_peer_address(peer: str) -> bool:
         return True
     except ValueError:     # digits and dots only are meant as IPv4 (`256.1.1.1`), not as a name
         return not re.fullmatch(r"[0-9.]+", peer) and bool(_HOSTNAME.fullmatch(peer))
+
+
+def _searched(host: Host) -> list[str]:
+    """The vault texts to look for in what was rendered: those of the vault vars read so far (the
+    inventory tells once it was loaded; a plain mapping in a unit test: all of them)."""
+    read = getattr(host.vars, "secret_texts_read", None)
+    return [s for s in (read() if read else host.secret_values) if len(s) >= MIN_LEAK_CHECK]
 
 
 def image_var(service: str) -> str:

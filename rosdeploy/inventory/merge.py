@@ -10,7 +10,7 @@ from typing import Any, Callable, Iterable, Iterator
 from rosdeploy.errors import Problem
 from rosdeploy.inventory.draft import Draft, GroupDraft, HostDraft, Layer, Origin, split_where
 from rosdeploy.inventory.graph import Graph
-from rosdeploy.inventory.hostvars import BadValue, check_layer, host_fields
+from rosdeploy.inventory.hostvars import PREFIX, BadValue, check_layer, host_fields
 from rosdeploy.inventory.model import Group, Inventory
 from rosdeploy.inventory.templating import HostVars, TemplateFailed
 from rosdeploy.model import Host, frozen_map
@@ -124,8 +124,9 @@ def _build_host(host: HostDraft, groups: tuple[str, ...], draft: Draft, magic: d
         "group_names": sorted(g for g in groups if g != "all")})
     magic["hostvars"][host.name] = hostvars
     fields, normalised, errors, warnings = host_fields(host.name, _reader(hostvars), origins)
-    draft.problems.extend(errors)
-    draft.warnings.extend(warnings)
+    errors += _written_from_vault(host.name, hostvars, origins)
+    draft.problems.extend(_hide_secrets(hostvars, errors))
+    draft.warnings.extend(_hide_secrets(hostvars, warnings))
     if errors:
         return None
     for key, value in normalised.items():
@@ -133,6 +134,38 @@ def _build_host(host: HostDraft, groups: tuple[str, ...], draft: Draft, magic: d
     secrets = frozenset().union(*(layer.secrets for layer in layers))
     return Host(name=host.name, groups=groups, vars=hostvars, secret_values=secrets,
                 source=host.source, **fields)
+
+
+MASK_MIN = 4     # as the output's masking and the leak check: shorter values match innocent text
+# Host fields rosdeploy writes as they are into files that are not secret: device paths into
+# compose.yml, udev entries into the udev rules.
+_WRITTEN_AS_IS = ("devices", "udev")
+
+
+def _written_from_vault(name: str, hostvars: HostVars, origins: dict[str, Origin]) -> list[Problem]:
+    problems = []
+    for var in (v for short in _WRITTEN_AS_IS for v in (short, PREFIX + short) if v in origins):
+        source = hostvars.secret_source(var)
+        if source is not None:
+            problems.append(origins[var].problem((var,), f"robot {name!r}: {var} comes from vault var {source!r}, and "
+                                                   "rosdeploy writes it into files that are not secret (compose.yml, "
+                                                   "udev rules): set it in a plain vars file"))
+    return problems
+
+
+def _hide_secrets(hostvars: HostVars, problems: list[Problem]) -> list[Problem]:
+    """A message about a robot's vars quotes no vault value, nor a value computed from one
+    (`got '********'`); shorter texts than MASK_MIN would hide innocent words instead."""
+    texts = sorted((t for t in hostvars.secret_texts() if len(t) >= MASK_MIN), key=len, reverse=True)
+    if not texts or not problems:
+        return problems
+    return [replace(p, message=_masked(p.message, texts)) for p in problems]
+
+
+def _masked(message: str, texts: list[str]) -> str:
+    for text in texts:
+        message = message.replace(text, "********")
+    return message
 
 
 def _reader(hostvars: HostVars) -> Callable[[str], Any]:

@@ -123,6 +123,7 @@ class HostVars(Mapping[str, Any]):
         # var -> the vault var its value came from: the vault vars themselves, then every var
         # whose template read one (marked as it is templated, see _note)
         self._secret_from = {key: key for key in self._raw if _from_vault(self._raw[key], origins.get(key))}
+        self._sources_read: set[str] = set()    # vault vars whose value (or one computed from it) was read
 
     def override(self, key: str, value: Any) -> None:
         """A value rosdeploy normalised (an absolute path): what every reader then sees."""
@@ -140,6 +141,26 @@ class HostVars(Mapping[str, Any]):
         """The vault var that `key`'s value came from, once `key` was read; None if none."""
         return self._secret_from.get(key)
 
+    def secret_texts(self) -> frozenset[str]:
+        """Every text known to be secret now: the vault vars' values, and the values computed from
+        them so far (as text, and every string inside)."""
+        texts: set[str] = set()
+        for var, source in self._secret_from.items():
+            if var == source:
+                texts.update(text for _, text in strings(self._raw[var], ()))
+            if var in self._done:
+                texts.update(text for _, text in strings(self._done[var], ()))
+                texts.add(str(self._done[var]))
+        return frozenset(texts)
+
+    def secret_texts_read(self) -> frozenset[str]:
+        """The texts of this robot's vault vars that anything has read so far (directly or through
+        other vars): only these can be in what was rendered, so only these are searched for
+        there. A vault value nothing reads (`ansible_become_password: robot`) cannot leak, and
+        searching for it would only find innocent text."""
+        return frozenset(text for var in self._sources_read if self._secret_from.get(var) == var
+                         for _, text in strings(self._raw[var], ()))
+
     def __getitem__(self, key: str) -> Any:
         if getattr(_LOCAL, "stack", None):   # inside another var's template: let it report
             return self.value(key)
@@ -156,6 +177,7 @@ class HostVars(Mapping[str, Any]):
         result = self._value(key)
         source = self._secret_from.get(key)
         if source is not None:
+            self._sources_read.add(source)
             _note(key, source)
         return result
 

@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 import test_hostile
+from rosdeploy.vault import encrypt
 from test_hostile import LAB_SECRET, cli, edit, set_env
 
 lab = test_hostile.lab      # the fixture: the example fleet copied
@@ -124,3 +125,48 @@ def test_a_template_override_that_reads_a_derived_var_is_refused(capsys: pytest.
     (lab / "templates" / "notes.txt.j2").write_text("token: {{ vars.shout }}\n")
     edit(lab, lambda d: d.update(templates="./templates"))
     refused(capsys, lab, "template notes.txt.j2", "notes.txt", "'shout'", "`secrets:`")
+
+
+# ------------------------------------------------ what messages and the leak check see
+
+def vault_file(lab: Path, name: str, text: str) -> None:
+    password = (lab / "inventory" / ".vault-password").read_bytes().strip()
+    (lab / "inventory" / "group_vars" / "all" / name).write_bytes(encrypt(text.encode(), password))
+
+
+@pytest.mark.parametrize("var, value", [("ros_domain_id", "{{ api_token }}"), ("ansible_port", "{{ api_token }}"),
+                                        ("ansible_user", "{{ api_token }};x")])
+def test_a_message_about_a_bad_var_does_not_quote_the_vault_value(capsys: pytest.CaptureFixture, lab: Path,
+                                                                  var: str, value: str) -> None:
+    """The value is named as a var's (`got '********'`), whether copied or computed from the vault."""
+    host_vars = lab / "inventory" / "host_vars" / "r1.yml"
+    for written in (value, value.replace("}}", "| upper }}")):
+        host_vars.write_text(yaml.safe_dump({var: written}))
+        code, text = cli(capsys, lab, "validate")    # cli() asserts LAB_SECRET is not in the output
+        assert code == 2 and var in text and "********" in text, text
+        assert SHOUTED not in text
+
+
+def test_devices_computed_from_a_vault_var_are_refused(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    group_vars(lab, devices={"motor": "/dev/{{ api_token | lower }}"})
+    code, text = cli(capsys, lab, "validate")
+    assert code == 2 and "devices comes from vault var 'api_token'" in text, text
+
+
+@pytest.mark.parametrize("unused", ["ansible_become_password: robot", "door_pin: '1000'", "label: host"])
+def test_a_vault_value_nothing_reads_is_not_searched_for(capsys: pytest.CaptureFixture, lab: Path,
+                                                         unused: str) -> None:
+    """A short vault value that no file reads ('1000', 'robot') used to be "written to compose.yml"
+    wherever the same text stood (`user: "1000:1000"`, a comment naming the robot)."""
+    vault_file(lab, "more_vault.yml", unused + "\n")
+    code, text = cli(capsys, lab, "render")
+    assert code == 0, text
+    assert "secret value would be written" not in text
+
+
+def test_a_vault_value_that_is_read_is_still_searched_for(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    """The text search stays for what is read: a vault var read when the inventory is loaded (the SSH
+    user) and written as it is (the logs' home folder) is caught without following a template."""
+    vault_file(lab, "more_vault.yml", "ansible_user: labsecretuser\n")    # logrotate.conf: /home/<user>/...
+    code, text = cli(capsys, lab, "render")
+    assert code == 2 and "secret value would be written to logrotate.conf" in text, text
