@@ -546,8 +546,37 @@ def _privileges(svc: dict) -> Iterator[tuple[str, str]]:
              if re.search(r"unconfined|label[:=]disable", str(o))]
     if loose:
         yield "security_opt", f"turns off confinement ({', '.join(loose)})"
-    if any(str(r).split(" ")[0] == "a" for r in _as_list(svc.get("device_cgroup_rules"))):
-        yield "device_cgroup_rules", "may use every device of the robot (device_cgroup_rules `a …`)"
+    rules = [str(r) for r in _as_list(svc.get("device_cgroup_rules")) if _root_device_rule(str(r))]
+    if rules:
+        what = "every device" if any(r.strip().startswith("a") for r in rules) else "devices that are root"
+        yield "device_cgroup_rules", (f"may use {what} of the robot (device_cgroup_rules "
+                                      f"{', '.join(repr(r) for r in rules[:3])})")
+
+
+# device_cgroup_rules as Docker parses them: type, major:minor, access.
+_DEVICE_RULE = re.compile(r"([abc]) +([0-9]+|\*):([0-9]+|\*) +([rwm]{1,3})")
+# Character devices that are root in all but name, by (major, minor); minor None is every minor.
+# mem, kmem, port (1:1, 1:2, 1:4) read and write physical memory and I/O ports; SCSI generic (21)
+# sends raw commands to disks; device-mapper and loop control (10:236, 10:237) create block devices
+# and the microcode loader (10:184) rewrites the CPU's. Other majors with a wildcard minor are the
+# usual robot rules (ttyUSB 188, ttyACM 166, USB 189, video 81), but 1 and 10 hold the above.
+_ROOT_CHAR_DEVICES = {(1, 1), (1, 2), (1, 4), (21, None), (10, 184), (10, 236), (10, 237)}
+
+
+def _root_device_rule(rule: str) -> bool:
+    """Does this cgroup rule let the container (which has CAP_MKNOD by default) reach a device that
+    is root on the robot? `a` is every device; `b` is block devices, i.e. the disks themselves; `c`
+    with a wildcard major is every character device. An unparsable rule counts: Docker refuses it, and
+    what it would grant cannot be told."""
+    found = _DEVICE_RULE.fullmatch(rule.strip())
+    if not found:
+        return True
+    kind, major, minor = found[1], found[2], found[3]
+    if kind in "ab" or major == "*":
+        return True
+    if minor == "*":
+        return int(major) in {m for m, _ in _ROOT_CHAR_DEVICES}
+    return (int(major), None) in _ROOT_CHAR_DEVICES or (int(major), int(minor)) in _ROOT_CHAR_DEVICES
 
 
 @rule("docker-socket-mounted", "error", "service", "No container mounts the Docker socket.",

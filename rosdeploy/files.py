@@ -130,12 +130,33 @@ class FileRenderer:
             problems.append(self._problem(host, entry, f"{rel!r} is not a path inside the fleet repo "
                                                        "(relative, without `..`)"))
             return None
-        path = (self.base / rel).resolve()
-        if not path.is_relative_to(self.base):
+        # Before any filesystem call, which raises on these: resolve() on a NUL (ValueError), stat() on
+        # a name past Linux's PATH_MAX 4096 or NAME_MAX 255 bytes (OSError 36, then blamed on --out).
+        full = str(self.base / rel).encode("utf-8", "surrogateescape")
+        unusable = ("contains a NUL byte" if b"\0" in full else "is over 4096 bytes long" if len(full) > 4096
+                    else "has a folder or file name over 255 bytes" if max(map(len, full.split(b"/"))) > 255
+                    else "")
+        if unusable:
+            shown = repr(rel) if len(rel) <= 60 else repr(rel[:57]) + "..."
+            problems.append(self._problem(host, entry, f"the path renders to {shown}, which {unusable}: fix "
+                                                       "the template or the inventory variables it uses"))
+            return None
+        try:
+            path = (self.base / rel).resolve()
+            inside, regular, found = path.is_relative_to(self.base), path.is_file(), path.exists()
+        except (OSError, RuntimeError) as exc:     # a symbolic link loop (RuntimeError before Python 3.13)
+            problems.append(self._problem(host, entry, f"{self.base / rel} cannot be opened ({exc}): fix the "
+                                                       "path or the link"))
+            return None
+        if not inside:
             problems.append(self._problem(host, entry, f"{rel} leads out of {self.base} (a symbolic link?): "
                                                        "keep the file in the fleet repo"))
             return None
-        if not path.is_file():
+        if found and not regular:
+            problems.append(self._problem(host, entry, f"{self.base / rel} is not a regular file (a folder, fifo "
+                                                       "or device): name a file of the fleet repo"))
+            return None
+        if not regular:
             problems.append(self._problem(host, entry, f"{self.base / rel} does not exist: add it to the fleet "
                                                        "repo, or fix the path"))
             return None
@@ -143,8 +164,15 @@ class FileRenderer:
 
     def _read(self, path: Path, host: Host, entry: RobotFile, problems: list[Problem]) -> str | None:
         if path not in self._cache:
-            data = path.read_bytes()
-            if len(data) > MAX_BYTES:
+            # Size first, then a bounded read: read_bytes() of a sparse 3 GB file filled memory before
+            # the check, and the file may grow after stat(). _checked let regular files only through.
+            try:
+                with path.open("rb") as handle:
+                    data = handle.read(MAX_BYTES + 1) if path.stat().st_size <= MAX_BYTES else None
+            except OSError as exc:
+                problems.append(self._problem(host, entry, f"cannot read {path}: {exc.strerror or exc}"))
+                return None
+            if data is None or len(data) > MAX_BYTES:
                 problems.append(self._problem(host, entry, f"{path} is over {MAX_BYTES >> 20} MB"))
                 return None
             try:
@@ -155,3 +183,4 @@ class FileRenderer:
                                                            "with `volumes:`"))
                 return None
         return self._cache[path]
+

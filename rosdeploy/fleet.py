@@ -15,6 +15,7 @@ import datetime
 import difflib
 import math
 import os
+import posixpath
 import stat
 import re
 import shlex
@@ -57,6 +58,9 @@ _SIZE_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)([kmg])b?", re.IGNORECASE)
 _UNITS = {"ms": 0.001, "s": 1, "m": 60, "h": 3600}
 MAX_LIMIT_BYTES = 2**63 - 1           # Docker keeps memory and log sizes as int64
 MAX_CPUS = 1024
+MIN_CPUS = 0.01                       # Docker refuses a smaller --cpus ("range of CPUs is from 0.01 to ...")
+# A size (memory, shm, log file) past 1 TiB is a typo on a robot; far longer ones overflow a float.
+MAX_SIZE_BYTES = 1 << 40
 MAX_KNOWN_HOSTS = 16 << 20            # bytes: 100,000 robots' keys take ~10 MB; /dev/zero, without end
 MAX_DURATION = 366 * 24 * 3600.0      # a year: no wait, deadline or window is longer
 _SECRET_ENV_REF = re.compile(r"\$\{?ROSDEPLOY_VAULT_PASSWORD")
@@ -124,7 +128,10 @@ def size_bytes(text: str | int) -> int:
         if re.fullmatch(r"[0-9]+", str(text).strip()):
             return int(str(text).strip())
         raise ValueError(text)
-    return int(float(match.group(1)) * 1024 ** ("kmg".index(match.group(2).lower()) + 1))
+    number = float(match.group(1)) * 1024 ** ("kmg".index(match.group(2).lower()) + 1)
+    if not math.isfinite(number):    # 400 nines overflow to inf, and int(inf) raises OverflowError
+        raise ValueError(text)
+    return int(number)
 
 
 def _kind(value: Any) -> str:
@@ -401,6 +408,14 @@ def _duration(r: Reader, kp: KeyPath, value: Any) -> Any:
 def _size(r: Reader, kp: KeyPath, value: Any) -> Any:
     if not isinstance(value, str) or not _SIZE_RE.fullmatch(value.strip()):
         raise Invalid(f"must be a size with a unit like 512m or 1g; got {_kind(value)}")
+    try:
+        too_big = size_bytes(value) > MAX_SIZE_BYTES
+    except ValueError:
+        too_big = True
+    if too_big:
+        shown = value if len(value) <= 20 else value[:17] + "..."
+        raise Invalid(f"{shown!r} is more than {MAX_SIZE_BYTES >> 30}g: no robot has that much memory "
+                      "or log space; give a size like 512m or 1g")
     return value.strip().lower()
 
 
@@ -602,11 +617,37 @@ def _mount(r: Reader, kp: KeyPath, value: Any) -> Any:
     if len(parts) != 2 or not all(ABSOLUTE_PATH_RE.fullmatch(p) and ".." not in p.split("/") for p in parts):
         raise Invalid(f"{value!r} is not a bind mount: use /path/on/robot:/path/in/container, optionally "
                       f"followed by :ro or :rw; both paths absolute, letters, digits and ._@+- only")
-    source, target = (p.rstrip("/") or "/" for p in parts)
-    taken = next((m for m in MANAGED_MOUNTS if target == m or target.startswith(m + "/")), None)
+    source, target = (normal_path(p) for p in parts)   # `/dev/./shm` is /dev/shm, to Docker and to checks
+    taken = managed_mount(target)
     if taken:
         raise Invalid(f"{target} is where rosdeploy mounts {taken} itself: choose another container path")
     return f"{source}:{target}:{mode}"
+
+
+def normal_path(path: str) -> str:
+    """An absolute path without `.`, `//` or a trailing `/` (`/.` and `//` are `/`)."""
+    return "/" + posixpath.normpath("/" + path).lstrip("/")
+
+
+def managed_mount(target: str) -> str | None:
+    """The mount of rosdeploy's own that a container path lands on or under (MANAGED_MOUNTS), or None."""
+    target = normal_path(target)
+    return next((m for m in MANAGED_MOUNTS if target == m or target.startswith(m + "/")), None)
+
+
+def _volumes(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """Bind mounts, no two at one container path (compose refuses the file: "duplicate mount point")."""
+    mounts = _listof(_mount, "bind mounts")(r, kp, value)
+    seen: dict[str, int] = {}
+    for i, mount in enumerate(mounts):
+        target = mount.split(":")[1]
+        if target in seen:
+            r.error(kp + (i,), f"{target} is already the container path of volumes[{seen[target]}]: compose "
+                               "refuses two mounts at one path; mount one of them elsewhere")
+        seen.setdefault(target, i)
+    if len(seen) < len(mounts):
+        raise Invalid()
+    return mounts
 
 
 def _compose_extra(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -632,16 +673,15 @@ def _memory(r: Reader, kp: KeyPath, value: Any) -> Any:
     if size_bytes(value) < DOCKER_MIN_MEMORY:
         raise Invalid(f"{value!r} is below Docker's minimum memory limit of 6m: give the service "
                       "what it needs, e.g. 256m")
-    if size_bytes(value) > MAX_LIMIT_BYTES:
-        raise Invalid(f"{value!r} is more memory than Docker can limit to (a 64-bit byte count)")
-    return value
+    return value   # the upper bound is _size's
 
 
 def _cpus(r: Reader, kp: KeyPath, value: Any) -> Any:
     """A CPU limit: a finite number above 0 (`.inf` would be written as `inf` for compose)."""
     value = _positive(r, kp, value)
-    if not math.isfinite(value) or value > MAX_CPUS:
-        raise Invalid(f"must be a number of CPUs up to {MAX_CPUS}, e.g. 1.5; got {value}")
+    if not math.isfinite(value) or not MIN_CPUS <= value <= MAX_CPUS:
+        raise Invalid(f"must be a number of CPUs from {MIN_CPUS} (Docker's least) up to {MAX_CPUS}, "
+                      f"e.g. 1.5; got {value}")
     return value
 
 
@@ -690,6 +730,9 @@ def _deploy_root(r: Reader, kp: KeyPath, value: Any) -> Any:
     if ".." in value.split("/"):
         raise Invalid(f"{value!r} contains `..`: releases would land outside the folder it names; "
                       "write the folder itself, e.g. ~/rosdeploy or /opt/rosdeploy")
+    if value.startswith("/") and normal_path(value) == "/":     # `/.` and `/./` are the root as well
+        raise Invalid(f"{value!r} is the robot's root folder: releases need a folder of their own, "
+                      "e.g. ~/rosdeploy or /opt/rosdeploy")
     return value
 
 
@@ -698,7 +741,20 @@ def _compose_passthrough(r: Reader, kp: KeyPath, value: Any) -> Any:
     value = _compose_extra(r, kp, value)
     if isinstance(value, dict):
         _compose_schema(r, kp, {k: v for k, v in value.items() if k not in MANAGED_COMPOSE})
+        _compose_tmpfs(r, kp + ("tmpfs",), value.get("tmpfs"))
     return value
+
+
+def _compose_tmpfs(r: Reader, kp: KeyPath, tmpfs: Any) -> None:
+    """`tmpfs: [/dev/shm]` would hide rosdeploy's own mounts (the DDS shared memory, logs, profile)."""
+    entries = [tmpfs] if isinstance(tmpfs, str) else tmpfs if isinstance(tmpfs, list) else []
+    for i, entry in enumerate(entries):
+        target = entry.split(":", 1)[0].strip() if isinstance(entry, str) else ""
+        taken = managed_mount(target) if target.startswith("/") else None
+        if taken:
+            r.error(kp + ((i,) if isinstance(tmpfs, list) else ()),
+                    f"{target} is where rosdeploy mounts {taken} itself: a tmpfs there would replace it; "
+                    "choose another container path")
 
 
 def _compose_schema(r: Reader, kp: KeyPath, extra: dict) -> None:
@@ -741,15 +797,33 @@ def _compose_validator() -> Any:
     return _VALIDATOR[0]
 
 
-_HEALTHCHECK = {"test": _health_test, "interval": _duration, "timeout": _duration,
-                "retries": _integer(1), "start_period": _duration}
+DOCKER_MIN_HEALTH = 0.001    # dockerd refuses a healthcheck duration under 1ms, other than 0
+
+
+def _health_period(zero: str | None) -> Convert:
+    """A service healthcheck duration. Docker reads 0 as its default (30s for interval and timeout),
+    so `interval: 0s` would silently be 30s: refuse it unless `zero` says what 0 means (start_period)."""
+    def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
+        seconds = _duration(r, kp, value)
+        if seconds == 0 and zero is None:
+            raise Invalid(f"must be above 0: Docker reads 0 as its default of 30s; write 30s if that is meant, "
+                          f"or a duration like 10s; got {_kind(value)}")
+        if 0 < seconds < DOCKER_MIN_HEALTH:
+            raise Invalid(f"must be 0 ({zero}) or at least 1ms (Docker's least); got {_kind(value)}"
+                          if zero else f"must be at least 1ms (Docker's least); got {_kind(value)}")
+        return seconds
+    return convert
+
+
+_HEALTHCHECK = {"test": _health_test, "interval": _health_period(None), "timeout": _health_period(None),
+                "retries": _integer(1), "start_period": _health_period("no start period")}
 _TOPIC = {"name": _string(TOPIC_RE, "ROS topic name (absolute, e.g. /joint_states)"), "min_rate": _positive}
 SERVICE = {
     "image": _image, "tag": _tag, "command": _command,
     "environment": _named(ENV_RE, "environment variable", _text),
     "secrets": _named(ENV_RE, "environment variable", _string(ENV_RE, "inventory variable name")),
     "devices": _listof(_string(DEVICE_RE, "device name"), "logical device names"),
-    "volumes": _listof(_mount, "bind mounts"),
+    "volumes": _volumes,
     "gpu": _boolean, "restart": _restart,
     "resources": _section({"memory": _memory, "cpus": _cpus}),
     "healthcheck": _healthcheck,
@@ -1033,7 +1107,7 @@ def _robot_file(r: Reader, kp: KeyPath, value: Any) -> Any:
     if not ABSOLUTE_PATH_RE.fullmatch(target) or ".." in target.split("/") or target.endswith("/"):
         raise Invalid(f"{target!r} must be an absolute file path in the container, "
                       "e.g. /config/params.yaml", ("target",))
-    taken = next((m for m in MANAGED_MOUNTS if target == m or target.startswith(m + "/")), None)
+    taken = managed_mount(target)
     if taken:
         raise Invalid(f"{target} is where rosdeploy mounts {taken} itself: choose another path", ("target",))
     return {"kind": kind, "source": source, "target": target, "secret": d.get("secret", False)}

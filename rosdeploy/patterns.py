@@ -8,6 +8,7 @@
     a:&b              intersection
     a:!b              exclusion
     site[0]  site[1:3]  subscripts of a group in Ansible's host order for it, end inclusive
+    @file             the patterns in a file, one a line (Ansible's `--limit @retry_file`)
 
 Like Ansible, unions are applied first, then intersections, then exclusions,
 whatever order they were written in, and a pattern made only of `&`/`!` terms
@@ -21,11 +22,17 @@ over SSH to inventory hosts only, so an absent localhost is refused with how to
 add it. A `[` or `]` without its pair is refused (Ansible's split drops it, so
 `~r[` selected every host starting with r), and so is a `~regex` whose matching
 takes more than REGEX_BUDGET seconds (catastrophic backtracking, `~(a+)+b`).
+A subscript past the group's end selects nothing (a warning, as above); one of
+more than MAX_INDEX_DIGITS digits is refused (Python's int() refuses 4300, where
+Ansible fails with an internal error), and so is an `@file` that is not a
+regular file of at most MAX_LIMIT_FILE bytes.
 """
 from __future__ import annotations
 
 import fnmatch
+import os
 import re
+import stat
 import signal
 import threading
 from contextlib import contextmanager
@@ -47,6 +54,11 @@ _LOCALHOST = ("localhost", "127.0.0.1", "::1")
 # `~(a+)+b` backtracks exponentially on a long host name; normal patterns over thousands of hosts
 # take milliseconds, so one second is far from any real selection and well within a prompt reply.
 REGEX_BUDGET = 1.0
+# A subscript of more digits than this is no host position (and int() of 4300 digits raises); up
+# to it, an index past the group selects nothing, as in Ansible.
+MAX_INDEX_DIGITS = 18
+# An `@file` of hosts: 1 MB holds some 50,000 host names; a fifo or /dev/zero would never end.
+MAX_LIMIT_FILE = 1 << 20
 
 
 class _OverBudget(Exception):
@@ -64,13 +76,14 @@ def select(pattern: str | None, hosts: Sequence[str], groups: Mapping[str, Seque
     """
     if pattern is None:
         return tuple(hosts)
-    terms = split(pattern)
+    terms = _read_files(split(pattern), where)
     if not terms:
         what = "names no host or group (a `[` without its `]`?)" if pattern.strip(" ,:") else "is empty"
         raise _error(where, f"pattern {pattern!r} {what}: give host or group names, e.g. 'site_north:!amr-n2'")
     _refuse_stray_bracket(pattern, where)
+    _refuse_huge_index(terms, where)
     unmatched: list[Problem] = []
-    with _budget(pattern, where):
+    with _budget(pattern if "@" not in pattern else ",".join(terms), where):   # an @file may hold ~regexes
         chosen = _evaluate(terms, hosts, groups, where, unmatched)
     if warnings is not None:
         warnings.extend(unmatched)
@@ -97,6 +110,42 @@ def split(pattern: str) -> list[str]:
     return [p.strip() for p in parts if p.strip()]
 
 
+def _read_files(terms: list[str], where: str) -> list[str]:
+    """`@path` terms replaced by the file's lines, one pattern each (Ansible's subset(); blank lines skipped)."""
+    out: list[str] = []
+    for term in terms:
+        if not term.startswith("@"):
+            out.append(term)
+            continue
+        for line in filter(None, (text.strip() for text in _limit_file(term[1:], where).split("\n"))):
+            _refuse_stray_bracket(line, where)
+            out.append(line)
+    return out
+
+
+def _limit_file(path: str, where: str) -> str:
+    """The text of an `@file`, stat'ed before it is read: no fifo, device or huge file."""
+    try:
+        info = os.stat(path)
+    except (OSError, ValueError):
+        raise _error(where, f"unable to find limit file {path!r} (`@` reads host patterns from a file): "
+                            "fix the path, or drop the `@`") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise _error(where, f"limit file {path!r} is not a regular file (a directory, fifo or device): "
+                            "give a file of host patterns, one a line")
+    if info.st_size > MAX_LIMIT_FILE:
+        raise _error(where, f"limit file {path!r} is larger than {MAX_LIMIT_FILE >> 20} MB: that is no list "
+                            "of hosts; give a file of host patterns, one a line")
+    try:
+        with open(path, "rb") as handle:
+            return handle.read(MAX_LIMIT_FILE + 1).decode("utf-8")
+    except OSError as exc:
+        raise _error(where, f"cannot read limit file {path!r}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise _error(where, f"limit file {path!r} is not UTF-8 text: give a file of host patterns, "
+                            "one a line") from None
+
+
 def _refuse_stray_bracket(pattern: str, where: str) -> None:
     """Ansible's ':' split silently drops a `[` or `]` it cannot pair, so `~r[` becomes `~r` and
     selects every host starting with r: more robots than written. Refuse it instead."""
@@ -107,6 +156,17 @@ def _refuse_stray_bracket(pattern: str, where: str) -> None:
             _matcher(word.lstrip("&!"), where)      # an invalid regex is named with the regex error
     raise _error(where, f"pattern {pattern!r} has a `[` or `]` without its pair (Ansible would drop it and "
                         f"select other hosts than written): close the bracket, e.g. 'site_north[0:2]'")
+
+
+def _refuse_huge_index(terms: list[str], where: str) -> None:
+    """A subscript of more than MAX_INDEX_DIGITS digits: no inventory reaches it, and int() may refuse it."""
+    for term in terms:
+        found = _SUBSCRIPT.match(term) if not term.lstrip("&!").startswith("~") else None
+        digits = [found[k] for k in ("index", "start", "end") if found and found[k]]
+        if any(len(d.lstrip("-0")) > MAX_INDEX_DIGITS for d in digits):
+            raise _error(where, f"subscript in {term[:60]!r}{'...' if len(term) > 60 else ''} is past any "
+                                f"inventory (more than {MAX_INDEX_DIGITS} digits): give a host position "
+                                "in the group, e.g. 'site_north[0:9]'")
 
 
 @contextmanager

@@ -97,6 +97,13 @@ def check_layer(layer: Layer) -> tuple[list[Problem], list[Problem]]:
             hint = suggest.did_you_mean(key, PREFIXED_VARS) or f"known: {', '.join(sorted(PREFIXED_VARS))}"
             errors.append(layer.origin.problem((key,), f"unknown rosdeploy variable {key!r}: {hint} "
                                                        "(the rosdeploy_ prefix is rosdeploy's own)"))
+        elif key.lower().startswith(PREFIX) and not key.startswith(PREFIX):
+            # Variable names are case-sensitive: `ROSDEPLOY_DEVICES` is not rosdeploy's, and would be
+            # ignored without a word (the `rosdeploy_` check above and _near_miss's cutoff both miss it).
+            hint = suggest.did_you_mean(key.lower(), PREFIXED_VARS) or f"known: {', '.join(sorted(PREFIXED_VARS))}"
+            warnings.append(layer.origin.problem((key,), f"{key!r} is not a variable rosdeploy reads (names are "
+                                                         f"case-sensitive, rosdeploy's are lower-case): {hint}",
+                                                 severity="warning"))
         elif close := _near_miss(key):
             warnings.append(layer.origin.problem((key,), f"{key!r} is not a variable rosdeploy reads: did you "
                                                          f"mean {close!r}? (ignored if it is another tool's)",

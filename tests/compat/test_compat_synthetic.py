@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from compat import ansible_list, ask, list_hosts, ours, require_ansible, select
+from compat import ansible_list, ask, cli, list_hosts, ours, require_ansible, select
 
 TEMPLATED = {
     "hosts.yml": """\
@@ -179,3 +179,16 @@ def test_patterns_select_ansibles_hosts(world: dict[str, Any]) -> None:
         assert mine == expected or (mine is None and expected == set()), pattern
     assert select(loaded, "canary[0]") == list_hosts(world["paths"]["patterns"], "canary[0]", world["tmp"])
     assert select(loaded, "web:nomatch") == list_hosts(world["paths"]["patterns"], "web:nomatch", world["tmp"])
+
+
+def test_limit_at_file_selects_ansibles_hosts(world: dict[str, Any]) -> None:
+    """`--limit @file`: one pattern a line, blank lines skipped, the other terms applied as well."""
+    loaded, _ = ours(world["paths"]["patterns"])
+    limit = world["tmp"] / "limit.txt"
+    limit.write_text("w1\n\n  east \ncanary[0]\n")
+    for pattern in (f"@{limit}", f"@{limit}:!e1", f"web:@{limit}"):
+        done = cli(["ansible", "-i", str(world["paths"]["patterns"]), "all", "--limit", pattern, "--list-hosts"],
+                   world["tmp"])
+        assert done.returncode == 0, done.stderr
+        theirs = {line.strip() for line in done.stdout.splitlines()[1:] if line.strip()}
+        assert select(loaded, pattern) == theirs, pattern

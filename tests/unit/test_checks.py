@@ -270,6 +270,22 @@ def test_privileged() -> None:
     silent("privileged")
 
 
+@pytest.mark.parametrize("rule", ["a *:* rwm", "b *:* rwm", "b 8:* rwm", "b 8:0 r", "c *:* rwm", "c *:1 rw",
+                                  "c 1:* rwm", "c 1:1 rw", "c 1:2 r", "c 10:* rwm", "c 10:237 rwm", "c 21:0 rw",
+                                  "c 81 rwm", "x 1:1 r"])
+def test_device_cgroup_rules_reaching_root_devices_are_privileged(rule: str) -> None:
+    # Docker's default CAP_MKNOD makes any device the rule allows a node the container can open.
+    found = fires("privileged", device_cgroup_rules=[rule])
+    assert found.key == "services.driver.device_cgroup_rules" and rule in found.message
+    silent("privileged", device_cgroup_rules=[rule], fleet=spec(driver={"allow_privileged": True}))
+
+
+@pytest.mark.parametrize("rule", ["c 81:* rmw", "c 188:* rwm", "c 189:* rmw", "c 166:0 rw", "c 1:3 rw",
+                                  "c 10:200 rwm"])
+def test_device_cgroup_rules_for_robot_devices_are_not_privileged(rule: str) -> None:
+    silent("privileged", device_cgroup_rules=[rule])
+
+
 @pytest.mark.parametrize("shm", [None, "64m", "128m", "lots"])
 def test_shm_too_small(shm: Any) -> None:
     assert fires("shm-too-small", shm_size=shm).key == "ros.shm_size"

@@ -287,7 +287,7 @@ def svc(patch: dict) -> dict:
     ({"resources": {"memory": 512}}, "resources.memory", ["unit"]),
     ({"resources": {"cpus": 0}}, "resources.cpus", ["above 0"]),
     ({"resources": {"cpus": 1e300}}, "resources.cpus", ["up to 1024"]),
-    ({"resources": {"memory": "99999999999999999999g"}}, "resources.memory", ["64-bit"]),
+    ({"resources": {"memory": "99999999999999999999g"}}, "resources.memory", ["more than 1024g"]),
     ({"resources": {"gpus": 1}}, "resources.gpus", ["unknown key"]),
     ({"healthcheck": "yes"}, "healthcheck", ["`image` to trust"]),
     ({"healthcheck": {"test": DELETE, "interval": "5s"}}, "healthcheck.test", ["required key missing"]),
@@ -567,3 +567,68 @@ def test_topics_within_is_a_positive_duration(fleet_dir: Path) -> None:
     assert spec.health.topics_within == 45.0
     assert load_fleet(write(fleet_dir, BASE)).health.topics_within == 10.0
     one(fleet_dir, {"health": {"topics_within": "0s"}}, "health.topics_within", "above 0")
+
+
+# ------------------------------------------------- issue 18: hostile values refused at the key
+
+NINES = "9" * 400
+
+
+@pytest.mark.parametrize("patch, key", [
+    ({"services": {"driver": {"resources": {"memory": NINES + "m"}}}}, "services.driver.resources.memory"),
+    ({"logging": {"max_size": NINES + "m"}}, "logging.max_size"),
+    ({"ros": {"shm_size": NINES + "m"}}, "ros.shm_size"),
+    ({"ros": {"shm_size": "1025g"}}, "ros.shm_size"),
+])
+def test_a_size_past_a_terabyte_is_refused_at_its_key(fleet_dir: Path, patch: dict, key: str) -> None:
+    # 400 nines overflowed float to inf: int(inf) raised OverflowError (exit 1).
+    one(fleet_dir, patch, key, "more than 1024g")
+
+
+def test_size_bytes_raises_value_error_on_overflow() -> None:
+    with pytest.raises(ValueError):
+        size_bytes(NINES + "m")
+
+
+@pytest.mark.parametrize("cpus", [1e-7, 0.009])
+def test_cpus_below_dockers_least_are_refused(fleet_dir: Path, cpus: float) -> None:
+    one(fleet_dir, {"services": {"driver": {"resources": {"cpus": cpus}}}}, "services.driver.resources.cpus", "0.01")
+
+
+@pytest.mark.parametrize("field, value, words", [
+    ("interval", "0s", ["Docker reads 0"]), ("timeout", 0, ["Docker reads 0"]),
+    ("interval", "0.0001s", ["1ms"]), ("start_period", "0.0004s", ["1ms"]),
+])
+def test_healthcheck_durations_docker_would_misread_are_refused(fleet_dir: Path, field: str, value: Any,
+                                                               words: list[str]) -> None:
+    patch = {"services": {"driver": {"healthcheck": {field: value}}}}
+    one(fleet_dir, patch, f"services.driver.healthcheck.{field}", *words)
+
+
+def test_a_healthcheck_start_period_of_0_means_none(fleet_dir: Path) -> None:
+    spec = load_fleet(write(fleet_dir, merge(BASE, {"services": {"driver": {"healthcheck": {"start_period": 0}}}})))
+    assert spec.services[0].healthcheck is not None
+
+
+@pytest.mark.parametrize("volumes", [["/a:/b", "/c:/b"], ["/a:/b", "/c:/b/:ro"], ["/a:/b", "/c:/./b"]])
+def test_two_volumes_at_one_container_path_are_refused(fleet_dir: Path, volumes: list[str]) -> None:
+    one(fleet_dir, {"services": {"driver": {"volumes": volumes}}}, "services.driver.volumes[1]", "volumes[0]")
+
+
+def test_a_volume_over_a_managed_mount_is_refused_however_written(fleet_dir: Path) -> None:
+    one(fleet_dir, {"services": {"driver": {"volumes": ["/x:/dev/./shm"]}}}, "services.driver.volumes[0]",
+        "rosdeploy mounts /dev/shm")
+
+
+@pytest.mark.parametrize("tmpfs, key", [
+    (["/dev/shm"], "services.driver.compose.tmpfs[0]"),
+    (["/x", "/ros_log/sub:size=1m"], "services.driver.compose.tmpfs[1]"),
+    ("/fastdds.xml", "services.driver.compose.tmpfs"),
+])
+def test_a_tmpfs_over_a_managed_mount_is_refused(fleet_dir: Path, tmpfs: Any, key: str) -> None:
+    one(fleet_dir, {"services": {"driver": {"compose": {"tmpfs": tmpfs}}}}, key, "rosdeploy mounts")
+
+
+@pytest.mark.parametrize("root", ["/.", "/./", "/./."])
+def test_deploy_root_that_normalises_to_root_is_refused(fleet_dir: Path, root: str) -> None:
+    one(fleet_dir, {"deploy_root": root}, "deploy_root", "root folder")

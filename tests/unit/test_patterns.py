@@ -158,3 +158,38 @@ def test_a_stray_bracket_in_a_name_is_refused() -> None:
     with pytest.raises(InventoryError, match=r"'site_north\]:bench-1' has a `\[` or `\]` without its pair"):
         names("site_north]:bench-1")
     assert names("~amr-[n]1:~bench-[1]") == ["amr-n1", "bench-1"]      # paired brackets are fine
+
+
+# ---------------------------------------------------------- issue 18: hostile --limit values
+
+@pytest.mark.parametrize("subscript", ["9" * 5000, "1:" + "9" * 5000, "9" * 5000 + ":", "-" + "9" * 5000,
+                                       "1" + "0" * 18], ids=["index", "end", "start", "negative", "19 digits"])
+def test_a_subscript_of_absurd_digits_is_refused_cleanly(subscript: str) -> None:
+    # int() of 4300+ digits raised ValueError (exit 1); Ansible fails there with "probably a bug".
+    with pytest.raises(InventoryError, match="past any inventory"):
+        names(f"warehouse[{subscript}]")
+
+
+def test_a_subscript_past_the_group_selects_nothing_but_a_long_slice_runs_to_the_end() -> None:
+    # As Ansible (checked with ansible --list-hosts): `web[1:99]` is w2, `web[5]` nothing.
+    assert names("warehouse[2:" + "9" * 18 + "]") == ["amr-s1", "amr-s2"]
+    assert names("warehouse[" + "9" * 18 + "]:bench-1") == ["bench-1"]
+
+
+def test_an_at_file_is_read_one_pattern_a_line(tmp_path) -> None:
+    limit = tmp_path / "lim.txt"
+    limit.write_text("amr-n1\n\n  site_south \n")
+    assert names(f"@{limit}") == ["amr-n1", "amr-s1", "amr-s2"]
+    assert names(f"@{limit}:!amr-s2") == ["amr-n1", "amr-s1"]
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda p: p / "missing.txt", "unable to find limit file"),
+    (lambda p: p, "not a regular file"),
+    (lambda p: (p / "big.txt").write_text("a\n" * (1 << 20)) and p / "big.txt", "larger than 1 MB"),
+    (lambda p: (p / "bin.txt").write_bytes(b"\xff\xfe") and p / "bin.txt", "not UTF-8"),
+    (lambda p: (p / "br.txt").write_text("amr-n1]\n") and p / "br.txt", "without its pair"),
+])
+def test_a_bad_at_file_is_a_clean_error(tmp_path, make, match: str) -> None:
+    with pytest.raises(InventoryError, match=match):
+        names(f"@{make(tmp_path)}")
