@@ -182,7 +182,8 @@ def add_fleet_args(parser: argparse.ArgumentParser, *, limit: bool = True, versi
                         help="inventory file or directory (overrides the fleet file's `inventory`)")
     if limit:
         parser.add_argument("-l", "--limit", metavar="PATTERN",
-                            help="robots to target, Ansible patterns: names, groups, globs, a:b, a:&b, a:!b")
+                            help="robots to target, Ansible patterns: names, groups, globs, ~regex, a:b, a:&b, "
+                                 "a:!b, @file")
     if version:
         parser.add_argument("--version", dest="release_version", metavar="VERSION",
                             help="release version (every image's tag; overrides the fleet file's `version`)")
