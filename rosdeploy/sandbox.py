@@ -18,16 +18,27 @@ every mutation of a list or dict, and ranges over 100,000 items. On top of it:
 - a rendered value (and a rendered template file) may not exceed MAX_LENGTH characters, so a
   chain of vars that each double the last stops at the first one too long;
 - a *value* (one string of a fleet file or inventory) may hold expressions and `if`, but no
-  loop, macro, include or import: those belong in template files.
+  loop, macro, include or import: those belong in template files;
+- a filter that gets a lazy sequence (`range(1000)|map('center', 999999)|list`) weighs its
+  items as it takes them, so it stops before holding more than MAX_LENGTH characters;
+- one render (a value, or a template file with what it includes) may take at most MAX_WORK
+  units of work (loop items by the size of the loop body, calls, filter calls, items weighed,
+  `in` searches): nested loops or `range(99999)|select('in', big)` stop within a second or
+  two, not hours;
+- output is the same on every run: no `random` filter, and no object whose text is its
+  address (`{{ range }}`), so the same inputs always give the same release.
 
 Every refusal is a `jinja2.TemplateError` (SecurityError), so callers report it like any
 other template error: a file:key problem, exit 2.
 """
 from __future__ import annotations
 
+import collections.abc
 import itertools
+import importlib
 import re
 import string
+import threading
 import types
 from functools import update_wrapper
 from pathlib import Path
@@ -35,17 +46,28 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, MutableMapping, S
 
 import jinja2
 import jinja2.nodes
-from jinja2.compiler import CodeGenerator, Frame, optimizeconst
+from jinja2.compiler import CodeGenerator, Frame, operators, optimizeconst
+from jinja2.runtime import LoopContext
 from jinja2.sandbox import ImmutableSandboxedEnvironment, SandboxedEscapeFormatter, SandboxedFormatter, SecurityError
 from markupsafe import Markup
 
 MAX_LENGTH = 1_000_000          # characters or items one operation may produce
 OBJECT_WEIGHT = 64               # what an object other than a string, number or container counts as
-MAX_POWER_BITS = 4096           # `**` results beyond this are a DoS, not a configuration value
+MAX_POWER_BITS = 4096           # `**` and int `*` results beyond this are a DoS, not a configuration value
+MAX_WORK = 10_000_000           # units of work one render may take (about a second: see the costs below)
+_SCAN_RATE = 16                 # items an `in` search scans (at C speed) per unit of MAX_WORK
+_RECURSE_COST = 64              # a recursive loop's `loop(x)`, per item: a call, a new loop, its output
+# MAX_WORK is in units of about 0.1 µs of work (an empty loop's iteration takes one); what costs more:
+_NODE_COST = 4                  # an expression or statement in a loop body, per iteration
+_FILTER_COST = 32               # a filter call (`map('int')` calls one per item, in no loop body)
+_CALL_COST = 48                 # a call through the sandbox (`x.upper()`): checks, then the call
+_WEIGH_COST = 5                 # an item weighed (a filter's list argument, each time)
 # A %-format or str.format width/precision of 5+ digits: pads to 10**4+ characters.
 _BIG_FORMAT = re.compile(r"%[-#0 +]*(\d{5,}|\*)|%[-#0 +]*\d*\.\d{5,}|\{[^{}]*:[^{}]*\d{5,}[^{}]*\}")
 _WIDTH_FILTERS = ("center", "indent", "wordwrap", "truncate", "batch", "slice")
 _TOO_LONG = f"a value longer than {MAX_LENGTH:,} characters is not allowed"
+_TOO_MUCH_WORK = (f"this template takes more than {MAX_WORK:,} loop steps or searches (loops inside loops, or `in` "
+                  "a long list many times) and is not allowed: loop over less, or search a dict instead of a list")
 _CONTAINERS = (list, tuple, dict, set, frozenset)
 # What a single value may not contain (statements that loop, define code or read other files).
 _VALUE_FORBIDDEN = (jinja2.nodes.For, jinja2.nodes.Macro, jinja2.nodes.CallBlock, jinja2.nodes.Include,
@@ -53,13 +75,97 @@ _VALUE_FORBIDDEN = (jinja2.nodes.For, jinja2.nodes.Macro, jinja2.nodes.CallBlock
                     jinja2.nodes.FilterBlock)
 
 
+# re's own parser (no stubs): a pattern's parse tree, to bound its backtracking before matching
+_sre_parse: Any = importlib.import_module("re._parser")
+_RENDER = threading.local()     # .budget: [work left] of the render under way in this thread, or None
+
+
 def _bounded_concat(parts: Iterable[str]) -> str:
-    """Template output, joined only when it is at most MAX_LENGTH characters: also stops a loop
-    that would output billions of pieces, after a million of them (all at C speed)."""
-    pieces = list(itertools.islice(parts, MAX_LENGTH + 1))
-    if len(pieces) > MAX_LENGTH or sum(map(len, pieces)) > MAX_LENGTH:
-        raise SecurityError(_TOO_LONG)
+    """Template output, joined only when it is at most MAX_LENGTH characters, counted as it comes
+    (a loop of long pieces stops at the first past the bound, before holding them all). Every
+    render ends here, so the outermost call holds the render's MAX_WORK budget."""
+    if getattr(_RENDER, "budget", None) is not None:      # a macro, `{% set %}` block, inventory var
+        return _joined(parts)
+    _RENDER.budget = [MAX_WORK]
+    try:
+        return _joined(parts)
+    finally:
+        _RENDER.budget = None
+
+
+def _joined(parts: Iterable[str]) -> str:
+    pieces = []
+    total = 0
+    for piece in parts:
+        total += len(piece)
+        pieces.append(piece)
+        if total > MAX_LENGTH or len(pieces) > MAX_LENGTH:   # a million empty pieces: a loop that outputs nothing
+            raise SecurityError(_TOO_LONG)
     return "".join(pieces)
+
+
+def _budget(context: Any = None) -> list[int]:
+    """The work left to the render under way: the one of its outermost concat, or else (an
+    expression evaluated for its value, never joined) the one of its template context."""
+    budget = getattr(_RENDER, "budget", None)
+    if budget is not None:
+        return budget
+    if context is None:
+        return [MAX_WORK]
+    budget = getattr(context, "_work_left", None)
+    if budget is None:
+        budget = context._work_left = [MAX_WORK]
+    return budget
+
+
+def charge(units: int, budget: list[int] | None = None) -> None:
+    """Take `units` of work from the render's budget: SecurityError once it is spent."""
+    budget = _budget() if budget is None else budget
+    budget[0] -= units
+    if budget[0] < 0:
+        raise SecurityError(_TOO_MUCH_WORK)
+
+
+def counted(iterable: Any, cost: int = 1, budget: list[int] | None = None) -> Any:
+    """A `{% for %}` iterable (and a recursive loop's `loop(x)`), each item charged `cost` (the
+    size of the loop's body): a sized one at once (a Jinja loop has no `break`, so it takes every
+    item) and iterated at full speed; another item by item."""
+    if isinstance(iterable, jinja2.Undefined):
+        return iterable            # iterating it says what is undefined
+    budget = _budget() if budget is None else budget
+    try:
+        size = len(iterable)
+    except TypeError:
+        return _counting(iter(iterable), cost, budget)
+    charge(size * cost, budget)
+    return iterable
+
+
+def _counting(items: Iterator[Any], cost: int, budget: list[int]) -> Iterator[Any]:
+    for item in items:
+        charge(cost, budget)
+        yield item
+
+
+def _body_cost(node: jinja2.nodes.For) -> int:
+    """What one iteration of `node` costs, roughly: the nodes of its body and test, not those of a
+    loop inside it (charged by its own items)."""
+    todo: list[jinja2.nodes.Node] = [*node.body, *([node.test] if node.test else [])]
+    cost = 1
+    while todo:
+        child = todo.pop()
+        cost += _NODE_COST
+        if not isinstance(child, jinja2.nodes.For):
+            todo.extend(child.iter_child_nodes())
+    return cost
+
+
+def searched(container: Any, context: Any = None) -> Any:
+    """The right side of `in` (the operator or the test), charged for the items it scans: a
+    list, tuple, string or range its length / _SCAN_RATE; a dict or set one lookup."""
+    scanned = len(container) if isinstance(container, (str, bytes, list, tuple, range)) else 0
+    charge(1 + scanned // _SCAN_RATE, _budget(context))
+    return container
 
 
 class _BoundedCodeGenerator(CodeGenerator):
@@ -82,6 +188,24 @@ class _BoundedCodeGenerator(CodeGenerator):
             self.write("), ")
         self.write(")))")
 
+    def visit_For(self, node: jinja2.nodes.For, frame: Frame) -> None:
+        # every loop takes its items through counted(): nested loops share one budget per render
+        if not getattr(node, "_counted", False):
+            cost = jinja2.nodes.Const(_body_cost(node))
+            node.iter = jinja2.nodes.Call(jinja2.nodes.EnvironmentAttribute("counted"), [node.iter, cost], [], None,
+                                          None, lineno=node.iter.lineno)
+            node._counted = True  # type: ignore[attr-defined]
+        super().visit_For(node, frame)
+
+    def visit_Operand(self, node: jinja2.nodes.Operand, frame: Frame) -> None:
+        # `x in big` inside a loop is a loop too: charged by searched()
+        if node.op not in ("in", "notin"):
+            super().visit_Operand(node, frame)
+            return
+        self.write(f" {operators[node.op]} environment.searched(")
+        self.visit(node.expr, frame)
+        self.write(", context)")
+
 
 class Sandbox(ImmutableSandboxedEnvironment):
     """ImmutableSandboxedEnvironment with bounded operators and no stepping-stone globals."""
@@ -89,6 +213,8 @@ class Sandbox(ImmutableSandboxedEnvironment):
     intercepted_binops = frozenset({"*", "**", "%", "+"})
     code_generator_class = _BoundedCodeGenerator
     concat = staticmethod(_bounded_concat)
+    counted = staticmethod(counted)
+    searched = staticmethod(searched)
 
     def __init__(self, plain_types: tuple[type, ...] = (), **kwargs: Any) -> None:
         """`plain_types`: frozen dataclasses of plain values whose public fields templates read in
@@ -106,6 +232,8 @@ class Sandbox(ImmutableSandboxedEnvironment):
         self.filters["format"] = _checked_format(self.filters["format"])
         for name, bound in _FILTER_BOUNDS.items():
             self.filters[name] = bound(self.filters[name])
+        self.filters["random"] = _no_random
+        self.tests["in"] = _test_in
         self.add_filters({})
 
     def add_filters(self, filters: Mapping[str, Callable[..., Any]]) -> None:
@@ -136,6 +264,7 @@ class Sandbox(ImmutableSandboxedEnvironment):
             _check_add(left, right)
         elif operator_ == "*":
             _check_repeat(left, right)
+            _check_product(left, right)
         elif operator_ == "**":
             _check_power(left, right)
         elif operator_ == "%" and isinstance(left, (str, bytes)):
@@ -144,10 +273,18 @@ class Sandbox(ImmutableSandboxedEnvironment):
 
     def call(self, context: Any, obj: Any, /, *args: Any, **kwargs: Any) -> Any:
         """Every call a template makes: the str/bytes methods that grow a string are checked
-        first (one dict lookup for any other call)."""
+        first (one dict lookup for any other call); each call is charged to the render's work."""
+        budget = _budget(context)
+        charge(_CALL_COST, budget)
+        if obj is counted:                              # a `{% for %}` (see _BoundedCodeGenerator)
+            return counted(*args, budget=budget)
         check = _METHOD_BOUNDS.get(getattr(obj, "__name__", None))
         if check is not None and isinstance(getattr(obj, "__self__", None), (str, bytes)):
             args = check(obj.__self__, args, kwargs)
+        elif isinstance(obj, LoopContext) and args:     # a recursive loop's `loop(children)`
+            args = (counted(args[0], _RECURSE_COST, budget), *args[1:])
+        elif obj is dict and args:                      # dict(lazy pairs) holds them all
+            args = (_lazy_weighed(args[0]), *args[1:])
         return super().call(context, obj, *args, **kwargs)
 
     @staticmethod
@@ -304,7 +441,10 @@ def describe(exc: BaseException) -> str:
     """A one-line reason for a failure inside a template, without the value that failed."""
     if isinstance(exc, RecursionError):
         return "the template recurses without end"
-    if isinstance(exc, (OverflowError, MemoryError)):
+    if isinstance(exc, MemoryError):
+        return ("a value grows larger than this computer's memory (MemoryError): build smaller values, "
+                "e.g. fewer or shorter items in a list or loop")
+    if isinstance(exc, OverflowError):
         return f"a value is too large ({type(exc).__name__}: {str(exc)[:200]})"
     return f"{type(exc).__name__}: {str(exc)[:200]}"
 
@@ -344,10 +484,41 @@ def _weigh(value: Any, limit: int, seen: dict[int, int]) -> int:
 
 def written(value: Any) -> Any:
     """Every `{{ value }}` and `~` operand before str(): a list holding the same list many times
-    over (`{% set a = [a, a] %}` 60 times) is small in memory, but 2**60 characters written out."""
+    over (`{% set a = [a, a] %}` 60 times) is small in memory, but 2**60 characters written out;
+    and an object written as its address (`{{ range }}`) is different text on every run."""
+    if type(value) is str:
+        return value
     if isinstance(value, _CONTAINERS) and weight(value) > MAX_LENGTH:
         raise SecurityError(_TOO_LONG)
+    _refuse_addressed(value, set())
     return value
+
+
+# Written out, these show where they are in memory (`<function safe_range at 0x7fd...>`)
+_ADDRESSED = (types.FunctionType, types.BuiltinFunctionType, types.MethodType, types.BuiltinMethodType,
+              types.MethodWrapperType, types.WrapperDescriptorType, types.MethodDescriptorType,
+              types.ClassMethodDescriptorType, types.GetSetDescriptorType, types.MemberDescriptorType,
+              types.GeneratorType, types.CoroutineType, types.AsyncGeneratorType, types.ModuleType, type,
+              collections.abc.Iterator)
+
+
+def _refuse_addressed(value: Any, seen: set[int]) -> None:
+    """SecurityError if `value`, or an item of it, writes out as its memory address: the same inputs
+    must give the same text (and release digest) on every run. A container is walked once (by id)."""
+    if isinstance(value, _CONTAINERS):
+        if id(value) in seen:
+            return
+        seen.add(id(value))
+        for item in itertools.chain.from_iterable(value.items()) if isinstance(value, dict) else value:
+            if not isinstance(item, (str, int, float)) and item is not None:
+                _refuse_addressed(item, seen)
+        return
+    if isinstance(value, (str, int, float)) or value is None:
+        return
+    kind = type(value)
+    if isinstance(value, _ADDRESSED) or (kind.__repr__ is object.__repr__ and kind.__str__ is object.__str__):
+        raise SecurityError(f"a {kind.__name__} object is not a value to write out (its text is its memory "
+                            "address, different on every run): call it, or write one of its attributes")
 
 
 def _refuse_longer(size: int, what: str) -> None:
@@ -437,7 +608,7 @@ def _replaced_size(text: Any, old: Any, new: Any, count: Any) -> int:
 
 def _method_join(sep: str | bytes, args: tuple[Any, ...], kwargs: dict[str, Any]) -> tuple[Any, ...]:
     if len(args) == 1 and not kwargs:
-        items = list(args[0])
+        items = list(_lazy_weighed(args[0]))
         _refuse_longer(_joined_size(items, len(sep)), "this join")
         return (items,)
     return args
@@ -589,22 +760,126 @@ def _weigh_each(values: Iterable[Any]) -> int:
     return total
 
 
+def _lazy_weighed(value: Any) -> Any:
+    """`value`, or if it is a lazy sequence (a generator, `map`), the same items weighed as they
+    are taken: whatever collects them stops past MAX_LENGTH, before holding them all."""
+    if isinstance(value, (str, bytes, *_CONTAINERS)) or not isinstance(value, collections.abc.Iterator):
+        return value
+    return _weighed_items(value)
+
+
+def _weighed_items(items: Iterator[Any]) -> Iterator[Any]:
+    total = 0
+    for item in items:
+        total += _weigh(item, MAX_LENGTH - total, {})     # a fresh memo: ids of freed items are reused
+        if total > MAX_LENGTH:
+            raise SecurityError(f"a sequence longer than {MAX_LENGTH:,} characters or items is not allowed")
+        yield item
+
+
+def _check_product(left: Any, right: Any) -> None:
+    """`a * b` of ints: as many bits as both together, so squaring a 2**2000 twenty times over
+    (a chain of inventory vars) would take gigabytes."""
+    if isinstance(left, int) and isinstance(right, int) and left and right:
+        if left.bit_length() + right.bit_length() > MAX_POWER_BITS + 1:
+            raise SecurityError(f"a product of more than {MAX_POWER_BITS} bits is too large a number")
+
+
+def _no_random(*args: Any, **kwargs: Any) -> Any:
+    raise SecurityError("the random filter is not allowed: a release must render the same on every run (or "
+                        "every plan would show a change): choose the value, e.g. by the robot's name")
+
+
+@jinja2.pass_context
+def _test_in(context: Any, value: Any, seq: Any) -> bool:
+    """Jinja's `in` test, charged like the operator: `select('in', big)` is a loop too."""
+    return value in searched(seq, context)
+
+
+def regex_replace(value: Any, pattern: str, replacement: str = "") -> str:
+    """Ansible's regex_replace, bounded: Python's `re` cannot be interrupted outside the main thread
+    (inventories are templated in worker threads too), so a pattern that could backtrack for long
+    on this value is refused before matching (_REGEX_STEPS), and the result is counted as it is built."""
+    text = str(value)
+    compiled = re.compile(pattern)
+    if len(text) * _backtracking(_sre_parse.parse(pattern), len(text), False) > _REGEX_STEPS:
+        raise SecurityError(f"regex_replace pattern {pattern!r} could take too long on a value of {len(text):,} "
+                            "characters (nested or many repeats, like `(a+)+` or `.*x.*`): simplify the pattern")
+    # matches do not overlap, so all of a group's copies together are at most the text once per reference
+    matches = sum(1 for _ in compiled.finditer(text))
+    refs = len(_GROUP_REF.findall(replacement))
+    _refuse_longer(len(text) + matches * len(replacement) + refs * len(text), "this regex_replace")
+    return compiled.sub(replacement, text)
+
+
+_GROUP_REF = re.compile(r"\\(?:\d|g<)")
+_REPEATS = (_sre_parse.MAX_REPEAT, _sre_parse.MIN_REPEAT, _sre_parse.POSSESSIVE_REPEAT)
+_REGEX_STEPS = 10**8      # matching steps a pattern may take, at worst: about a second
+
+
+def _backtracking(items: Any, n: int, repeated: bool) -> int:
+    """How many ways, at most, `items` (a parsed pattern) can match at one position of an n-character
+    text: each repeat multiplies by its choices, alternatives add. Refused where this does not hold:
+    a repeat or `|` inside a repeat ((a+)+, (a|a)*: exponential), a backreference in one."""
+    ways = 1
+    for op, av in items:
+        if op in _REPEATS:
+            low, high, sub = av
+            many = high > 1
+            if repeated and many:
+                raise SecurityError("a repeat inside a repeat (like `(a+)+`) is not allowed in regex_replace")
+            ways *= (min(high, n) + 1) * _backtracking(sub, n, repeated or many)
+        elif op is _sre_parse.BRANCH:
+            if repeated:
+                raise SecurityError("alternatives inside a repeat (like `(a|ab)*`) are not allowed in regex_replace")
+            ways *= sum(_backtracking(alt, n, repeated) for alt in av[1])
+        elif op in (_sre_parse.SUBPATTERN, _sre_parse.ASSERT, _sre_parse.ASSERT_NOT, _sre_parse.ATOMIC_GROUP):
+            ways *= _backtracking(av if op is _sre_parse.ATOMIC_GROUP else av[-1], n, repeated)
+        elif op is _sre_parse.GROUPREF_EXISTS:
+            ways *= sum(_backtracking(alt, n, repeated) for alt in av[1:] if alt is not None)
+        elif op is _sre_parse.GROUPREF and repeated:
+            raise SecurityError("a backreference inside a repeat is not allowed in regex_replace")
+        ways = min(ways, _REGEX_STEPS + 1)
+    return ways
+
+
 # applied after the width check of _WIDTH_FILTERS
 _FILTER_BOUNDS = {"replace": _bounded_replace, "join": _bounded_join_filter, "indent": _bounded_indent,
                   "wordwrap": _bounded_wordwrap, "sum": _bounded_sum}
 
 
 def _weighed_filter(func: Callable[..., Any]) -> Callable[..., Any]:
-    # A filter marked pass_context/pass_environment/pass_eval_context gets that first, then the value
-    at = 1 if getattr(func, "jinja_pass_arg", None) is not None else 0
+    """`func`, its value weighed and its call charged to the render's work first. It takes the
+    template context (to find the render's budget) and passes `func` what its marker asks for."""
+    first = _FIRST_ARG.get(getattr(func, "jinja_pass_arg", None), None)
 
-    def weighed(*args: Any, **kwargs: Any) -> Any:
-        if len(args) > at and isinstance(args[at], _CONTAINERS):
-            written(args[at])
-        return func(*args, **kwargs)
-    _copy_markers(func, weighed)
+    @jinja2.pass_context
+    def weighed(context: Any, *args: Any, **kwargs: Any) -> Any:
+        budget = _budget(context)
+        if args:
+            value = args[0]
+            if isinstance(value, _CONTAINERS):
+                size = weight(value)
+                if size > MAX_LENGTH:
+                    raise SecurityError(_TOO_LONG)
+                charge(size * _WEIGH_COST, budget)      # so `big|length` in a loop is a loop over big
+            else:
+                charge(_FILTER_COST, budget)
+                if not isinstance(value, str):
+                    args = (_lazy_weighed(value), *args[1:])
+        if first is None:
+            return func(*args, **kwargs)
+        return func(first(context), *args, **kwargs)
     weighed._weighed = True  # type: ignore[attr-defined]
     return weighed
+
+
+# What a filter marked pass_context / pass_eval_context / pass_environment gets first
+_FIRST_ARG: dict[Any, Callable[[Any], Any]] = {
+    jinja2.utils._PassArg.context: lambda context: context,
+    jinja2.utils._PassArg.eval_context: lambda context: context.eval_ctx,
+    jinja2.utils._PassArg.environment: lambda context: context.environment,
+}
 
 
 def _copy_markers(src: Callable[..., Any], dst: Callable[..., Any]) -> None:

@@ -68,8 +68,9 @@ def _environment() -> Sandbox:
     env = Sandbox(keep_trailing_newline=True)
     env.globals = {"range": env.globals["range"], "dict": dict}
     # A few of Ansible's filters that inventories use for paths and names; all pure.
+    from rosdeploy.sandbox import regex_replace     # bounded in time and size, unlike re.sub
     env.add_filters({"basename": posixpath.basename, "dirname": posixpath.dirname, "bool": _bool,
-                        "regex_replace": lambda v, p, r="": re.sub(p, r, str(v)),
+                        "regex_replace": regex_replace,
                         "ternary": lambda v, a, b=None: a if v else b})
     return env
 
@@ -258,12 +259,13 @@ class _Scope(dict):
         self._host = host
 
     def __contains__(self, name: object) -> bool:
-        return isinstance(name, str) and self._host.knows(name)
+        return isinstance(name, str) and (self._host.knows(name) or name in _ENV.globals)
 
     def __getitem__(self, name: str) -> Any:
-        if not self._host.knows(name):
-            raise KeyError(name)
-        return self._host.lookup(name)
+        if self._host.knows(name):
+            return self._host.lookup(name)
+        # a shared context gets no globals from Jinja: `range` and `dict` are looked up here
+        return _ENV.globals[name]
 
     def get(self, name: str, default: Any = None) -> Any:
         return self[name] if name in self else default

@@ -3,6 +3,8 @@ file:key problem), never a hang or an internal MemoryError; ordinary uses still 
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -11,7 +13,7 @@ import pytest
 import yaml
 
 from rosdeploy.cli import main
-from rosdeploy.sandbox import Sandbox, render_value, value_template
+from rosdeploy.sandbox import Layered, Sandbox, describe, render_value, value_template
 
 DATA = Path(__file__).resolve().parent / "data" / "fleet"
 QUICK = 5.0     # seconds: each of these took over 20 s, or 4 GB, before
@@ -200,3 +202,131 @@ def test_an_inventory_doubling_chain_fails_fast(capsys: pytest.CaptureFixture, l
     assert "services.driver.environment.X" in text and "1,000,000 characters" in text, text
     assert "Traceback" not in text and "internal error" not in text and "MemoryError" not in text, text
     assert took < QUICK * 2, took
+
+
+# ------------------------------------------------------------------ issue 18, second round: in a subprocess
+# with little memory and a deadline, so a fix that regresses fails here instead of hanging or swapping
+
+LITTLE_MEMORY = 600 * 2**20     # bytes of address space: Python and Jinja take about 150 MB of it
+_CHILD = """
+import resource, sys
+resource.setrlimit(resource.RLIMIT_AS, ({limit}, {limit}))
+from rosdeploy.sandbox import Layered, Sandbox, describe, render_value, value_template
+env = Sandbox()
+source = sys.stdin.read()
+try:
+    if sys.argv[1] == "file":
+        print("OK", len(env.from_string(source).render(big=list(range(99999)))))
+    else:
+        print("OK", len(render_value(value_template(env, source), {{}})))
+except MemoryError:
+    print("MemoryError")
+except Exception as exc:
+    print(type(exc).__name__, exc)
+"""
+
+
+def bounded_outcome(source: str, kind: str = "value") -> str:
+    """What rendering `source` says in a child process limited to LITTLE_MEMORY and QUICK seconds."""
+    try:
+        done = subprocess.run([sys.executable, "-c", _CHILD.format(limit=LITTLE_MEMORY), kind], input=source,
+                              capture_output=True, text=True, timeout=QUICK, cwd=Path(__file__).parents[2])
+    except subprocess.TimeoutExpired:
+        return "TIMEOUT"
+    return done.stdout + done.stderr
+
+
+LAZY_AMPLIFIERS = [
+    "{{ range(1000)|map('string')|map('center', 999999)|list|length }}",
+    "{{ range(3000)|map('string')|map('center', 999999)|list|length }}",
+    "{{ range(3000)|map('string')|map('center', 999999)|join|length }}",
+    "{{ range(3000)|map('string')|map('center', 999999)|unique|list|length }}",
+    "{{ range(3000)|map('string')|map('center', 999999)|sort|length }}",
+    "{{ ''.join(range(3000)|map('string')|map('center', 999999))|length }}",
+]
+
+
+@pytest.mark.parametrize("source", LAZY_AMPLIFIERS)
+def test_a_lazy_sequence_is_weighed_as_it_is_taken(source: str) -> None:
+    """`list`, `unique`, `join`... built the whole list (1 GB, or MemoryError) before anything weighed it."""
+    said = bounded_outcome(source)
+    assert "SecurityError" in said and "longer than 1,000,000" in said, said
+
+
+def test_template_output_is_counted_as_it_comes() -> None:
+    """_bounded_concat held every piece (1 GB here) before adding up their lengths."""
+    said = bounded_outcome('{% for i in range(1000) %}{{ "x" * 999999 }}{% endfor %}', "file")
+    assert "SecurityError" in said and "longer than 1,000,000" in said, said
+
+
+@pytest.mark.parametrize("source", [
+    "{% for i in range(99999) %}{% for j in range(99999) %}{% endfor %}{% endfor %}x",
+    "{% for i in range(99999) %}{% for j in range(99999) if j < 0 %}{% endfor %}{% endfor %}x",
+    "{% for i in range(99999) %}{% for j in range(99999)|map('int') %}{% endfor %}{% endfor %}x",
+    "{% for i in range(99999) %}{% if i in big %}{% endif %}{% endfor %}x",
+    "{% for i in range(99999) %}{% if i not in big %}{% endif %}{% endfor %}x",
+    "{% for i in range(99999) %}{{ big|length }}{% endfor %}x",
+    "{% for i in range(2) recursive %}{% if loop.depth < 40 %}{{ loop(range(2)) }}{% endif %}{% endfor %}",
+    "{{ range(99999)|select('in', big)|list|length }}",
+    "{{ range(99999)|reject('in', big)|list|length }}",
+])
+def test_a_template_file_that_loops_too_long_is_refused(source: str) -> None:
+    """No output, so no output bound: these ran for hours (or forever)."""
+    said = bounded_outcome(source, "file")
+    assert "SecurityError" in said and "loop steps" in said, said
+
+
+def test_a_quadratic_in_test_in_one_value_is_refused() -> None:
+    said = bounded_outcome("{{ range(99999)|select('in', range(99999)|list)|list|length }}")
+    assert "SecurityError" in said and "loop steps" in said, said
+
+
+@pytest.mark.parametrize("source, expect", [
+    ("{% for i in range(1000) %}{% for j in range(1000) %}{% endfor %}{% endfor %}x", "x"),
+    ("{% for i in range(3) if i != 1 %}{{ i }}{% endfor %}", "02"),
+    ("{% for i in [1, [2, [3]]] recursive %}{% if i is iterable %}{{ loop(i) }}{% else %}{{ i }}{% endif %}"
+     "{% endfor %}", "123"),
+    ("{{ 2 in [1, 2] }}{{ 'b' not in 'abc' }}{{ 'k' in {'k': 1} }}", "TrueFalseTrue"),
+    ("{{ [1, 2, 3]|select('in', [1, 3])|list }}", "[1, 3]"),
+    ("{{ range(3)|map('string')|join('-') }}", "0-1-2"),
+    ("{{ range(3)|map('string')|unique|list }}", "['0', '1', '2']"),
+    ("{{ ''.join(range(3)|map('string')) }}", "012"),
+    ("{{ dict([('a', 1)]) }}", "{'a': 1}"),
+    ("{{ (2 ** 2000 * 2 ** 2000)|string|length }}", "1205"),
+    ("{{ [1, 'a', none, 1.5, true, (2,), {'k': [3]}] }}", "[1, 'a', None, 1.5, True, (2,), {'k': [3]}]"),
+])
+def test_ordinary_loops_and_sequences_still_work(source: str, expect: str) -> None:
+    assert jinja2_file(source) == expect
+
+
+def jinja2_file(source: str) -> str:
+    return Sandbox().from_string(source).render()
+
+
+@pytest.mark.parametrize("source", [
+    "{{ (2 ** 2000) * (2 ** 2000) * (2 ** 2000) }}",
+    "{{ (2 ** 2040) * (2 ** 2040) * (2 ** 100) }}",
+])
+def test_a_product_of_huge_ints_is_refused(source: str) -> None:
+    with pytest.raises(jinja2.TemplateError, match="too large a number"):
+        render(source)
+
+
+@pytest.mark.parametrize("source", [
+    "{{ range }}", "{{ ''.upper }}", "{{ [range] }}", "{{ {'f': range} }}", "{{ range(3)|map('string') }}",
+    "{{ 'x' ~ range }}", "{{ '{}'.format(range) }}", "{{ [1, 2]|random }}", "{{ dict }}",
+])
+def test_an_output_that_differs_on_every_run_is_refused(source: str) -> None:
+    """`<function safe_range at 0x7fd...>` and `|random` changed the release digest on every run."""
+    with pytest.raises(jinja2.TemplateError) as caught:
+        render(source)
+    assert "memory address" in str(caught.value) or "random filter is not allowed" in str(caught.value)
+
+
+def test_objects_that_write_the_same_text_every_run_still_write() -> None:
+    assert render("{{ vars }}|{{ range(2) }}", vars=Layered({"a": 1})) == "<1 vars>|range(0, 2)"
+
+
+def test_a_memory_error_says_what_to_do() -> None:
+    text = describe(MemoryError())
+    assert "memory" in text and "smaller" in text and "()" not in text, text
