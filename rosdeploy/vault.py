@@ -35,6 +35,7 @@ from typing import Callable, Mapping, Sequence
 # completion and a `validate` of a fleet without vault files never load it.
 
 from rosdeploy.errors import Problem, VaultError
+from rosdeploy import yamlsrc
 
 MAGIC = b"$ROSDEPLOY_VAULT;"
 ANSIBLE_MAGIC = b"$ANSIBLE_VAULT;"
@@ -58,7 +59,15 @@ class ScryptParams:
 
 
 # A header is attacker-controlled input: refuse costs that would exhaust memory or time.
-_MAX = ScryptParams(n=2 ** 22, r=32, p=16)
+# scrypt takes 128*n*r bytes and time in p*n*r: allow twice the memory and four times the work of
+# what rosdeploy writes (ScryptParams()), so a header cannot make one file cost 16 GB or 20 s.
+_MAX_MEMORY = 2 * 128 * ScryptParams().n * ScryptParams().r          # 64 MiB
+_MAX_WORK = 4 * ScryptParams().p * ScryptParams().n * ScryptParams().r
+MAX_FILE_BYTES = yamlsrc.MAX_FILE_BYTES   # a vault file is a vars file: the inventory's bound
+MAX_PASSWORD_BYTES = 1 << 20     # a password file holds one line
+SCRIPT_OUTPUT_LIMIT = MAX_PASSWORD_BYTES
+SCRIPT_TIMEOUT = 30.0            # a password manager asks and answers in seconds; a hung one must not hang us
+_SHOWN = 60                      # characters of a header quoted in a message
 
 
 # --------------------------------------------------------------------- format
@@ -95,6 +104,16 @@ def decrypt(data: bytes, password: bytes, source: str, *, password_source: str =
         raise _wrong_password(source, password_source) from None
 
 
+def check_header(data: bytes, source: str) -> None:
+    """What decrypt() refuses before it needs a password (no header, a damaged or costly one):
+    for an inline `!vault` value, checked when its file is read, where its line is known."""
+    header, _ = _split_header(data, source)
+    if data.startswith(ANSIBLE_MAGIC):
+        _check_ansible_header(header, source)
+    else:
+        _parse_header(header, source)
+
+
 def _scrypt(password: bytes, salt: bytes, params: ScryptParams) -> bytes:
     from cryptography.hazmat.primitives.kdf.scrypt import Scrypt
 
@@ -116,17 +135,17 @@ def _split_header(data: bytes, source: str) -> tuple[str, str]:
 def _parse_header(header: str, source: str) -> ScryptParams:
     fields = header.split(";")
     if len(fields) != 5 or fields[1] != "1":
-        raise _error(source, f"unsupported vault header {header!r}: this rosdeploy reads "
+        raise _error(source, f"unsupported vault header {_shown(header)}: this rosdeploy reads "
                              "'$ROSDEPLOY_VAULT;1;AES256-GCM;scrypt;n=..,r=..,p=..'; "
                              "a newer rosdeploy may have written it")
     if fields[2] != "AES256-GCM" or fields[3] != "scrypt":
-        raise _error(source, f"unsupported cipher {fields[2]!r} / key derivation {fields[3]!r} "
+        raise _error(source, f"unsupported cipher {_shown(fields[2])} / key derivation {_shown(fields[3])} "
                              "in the vault header: only AES256-GCM with scrypt is known")
     try:
         values = dict(item.split("=", 1) for item in fields[4].split(","))
         params = ScryptParams(n=int(values["n"]), r=int(values["r"]), p=int(values["p"]))
     except (ValueError, KeyError):
-        raise _error(source, f"malformed scrypt parameters {fields[4]!r} in the vault header: "
+        raise _error(source, f"malformed scrypt parameters {_shown(fields[4])} in the vault header: "
                              "expected n=N,r=R,p=P") from None
     _check_params(params, source)
     return params
@@ -134,10 +153,17 @@ def _parse_header(header: str, source: str) -> ScryptParams:
 
 def _check_params(params: ScryptParams, source: str) -> None:
     power_of_two = params.n > 1 and params.n & (params.n - 1) == 0
-    if not power_of_two or params.n > _MAX.n or not 1 <= params.r <= _MAX.r or not 1 <= params.p <= _MAX.p:
-        raise _error(source, f"scrypt parameters {params.header_field()} in the vault header are out of "
-                             f"range (n a power of two up to {_MAX.n}, r up to {_MAX.r}, p up to {_MAX.p}); "
-                             "the header was edited or damaged")
+    memory, work = 128 * params.n * params.r, params.p * params.n * params.r
+    if not power_of_two or min(params.r, params.p) < 1 or memory > _MAX_MEMORY or work > _MAX_WORK:
+        raise _error(source, f"scrypt parameters {_shown(params.header_field())} in the vault header are out of "
+                             f"range (n a power of two, r and p 1 or more, 128*n*r at most {_MAX_MEMORY >> 20} MiB, "
+                             f"p*n*r at most {_MAX_WORK}; rosdeploy writes {ScryptParams().header_field()}): "
+                             "the header was edited or damaged; restore the file from version control")
+
+
+def _shown(text: str) -> str:
+    """`text` quoted for a message, cut short: a header is input, maybe thousands of digits."""
+    return repr(text) if len(text) <= _SHOWN else f"{text[:_SHOWN]!r}... ({len(text)} characters)"
 
 
 def _b64(body: str, source: str) -> bytes:
@@ -194,10 +220,7 @@ def _ansible_decrypt(header: str, body: str, password: bytes, source: str, passw
     from cryptography.hazmat.primitives import hashes, hmac, padding
     from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
 
-    fields = header.split(";")
-    if len(fields) < 3 or fields[1] not in ("1.1", "1.2") or fields[2] != "AES256":
-        raise _error(source, f"unsupported Ansible vault header {header!r}: only 1.1/1.2 AES256 is "
-                             "read; re-encrypt it with `ansible-vault rekey`")
+    _check_ansible_header(header, source)
     try:
         salt, mac, ciphertext = (binascii.unhexlify(x) for x in binascii.unhexlify(body).split(b"\n", 2))
     except (binascii.Error, ValueError):
@@ -216,6 +239,13 @@ def _ansible_decrypt(header: str, body: str, password: bytes, source: str, passw
         return unpadder.update(decryptor.update(ciphertext) + decryptor.finalize()) + unpadder.finalize()
     except ValueError:
         raise _error(source, "Ansible vault padding is invalid: the file is damaged") from None
+
+
+def _check_ansible_header(header: str, source: str) -> None:
+    fields = header.split(";")
+    if len(fields) < 3 or fields[1] not in ("1.1", "1.2") or fields[2] != "AES256":
+        raise _error(source, f"unsupported Ansible vault header {_shown(header)}: only 1.1/1.2 AES256 is "
+                             "read; re-encrypt it with `ansible-vault rekey`")
 
 
 def _ansible_keys(password: bytes, salt: bytes) -> tuple[bytes, bytes, bytes]:
@@ -392,10 +422,11 @@ def read_password_file(path: str, given: str = "") -> bytes:
     """A password file's content; an executable file is run and its stdout used (like Ansible).
     `given`: where the path came from, for the message (default: the option or the variable)."""
     path = os.path.expanduser(path)
-    if not os.path.isfile(path):
+    if not os.path.exists(path):
         raise _error(path, f"vault password file not found: check "
                            f"{given or f'--vault-password-file / {ENV_PASSWORD_FILE}'}")
-    raw = _run_password_script(path) if os.access(path, os.X_OK) else _read_file(path)
+    script = os.path.isfile(path) and os.access(path, os.X_OK)
+    raw = _run_password_script(path) if script else _read_file(path, MAX_PASSWORD_BYTES, "a vault password file")
     # Ansible strips surrounding whitespace too, so one password file serves both tools.
     password = raw.strip()
     if not password:
@@ -404,17 +435,31 @@ def read_password_file(path: str, given: str = "") -> bytes:
 
 
 def _run_password_script(path: str) -> bytes:
-    try:
-        # absolute: a bare `pw` would be looked up on $PATH, not in the current directory
-        done = subprocess.run([os.path.abspath(path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, timeout=120,
-                              check=False)
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        raise _error(path, f"the vault password file is executable but could not be run ({exc}); "
-                           "remove its execute bit if it is a plain password file") from exc
-    if done.returncode != 0:
-        tail = done.stderr.decode("utf-8", "replace").strip()[-200:]
-        raise _error(path, f"the vault password script exited {done.returncode}: {tail}")
-    return done.stdout
+    """Its stdout, through the dynamic inventory's runner: its own session, stopped (with whatever
+    it started) past that runner's time limit or output cap; output to files, read up to our cap."""
+    from rosdeploy.inventory import script as runner
+
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        try:
+            # absolute: a bare `pw` would be looked up on $PATH, not in the current directory
+            proc = subprocess.Popen([os.path.abspath(path)], stdout=out, stderr=err, start_new_session=True)
+        except OSError as exc:
+            raise _error(path, f"the vault password file is executable but could not be run ({exc.strerror}); "
+                               "remove its execute bit if it is a plain password file") from exc
+        stopped = runner.wait(proc, out.fileno(), err.fileno(), timeout=SCRIPT_TIMEOUT, limit=SCRIPT_OUTPUT_LIMIT)
+        if stopped == "time":
+            raise _error(path, f"the vault password script did not finish within {SCRIPT_TIMEOUT:g} s: fix it, "
+                               "or give a plain password file")
+        if stopped == "size" or os.fstat(out.fileno()).st_size > SCRIPT_OUTPUT_LIMIT:
+            raise _error(path, f"the vault password script printed more than {SCRIPT_OUTPUT_LIMIT >> 20} MiB: it "
+                               "must print the password on one line")
+        out.seek(0)
+        err.seek(max(0, os.fstat(err.fileno()).st_size - 800))     # only its end is quoted
+        stdout, stderr = out.read(), err.read()
+    if proc.returncode != 0:
+        tail = stderr.decode("utf-8", "replace").strip()[-200:]
+        raise _error(path, f"the vault password script exited {proc.returncode}: {tail}")
+    return stdout
 
 
 # ------------------------------------------------------------- files in place
@@ -493,12 +538,9 @@ def write_private(path: str, data: bytes) -> None:
         raise _error(path, f"cannot write: {exc.strerror}") from exc
 
 
-def _read_file(path: str) -> bytes:
-    try:
-        with open(path, "rb") as handle:
-            return handle.read()
-    except OSError as exc:
-        raise _error(path, f"cannot read: {exc.strerror}") from exc
+def _read_file(path: str, limit: int = MAX_FILE_BYTES, what: str = "a vault file") -> bytes:
+    """A regular file of at most `limit` bytes (never a FIFO or /dev/zero: refused before reading)."""
+    return yamlsrc.read_bytes(path, limit, what)
 
 
 def _shred(path: str) -> None:

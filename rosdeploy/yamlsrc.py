@@ -28,6 +28,10 @@ MAX_DEPTH = 200            # nesting levels (libyaml's composer recurses in C an
 MAX_EXPANSION = 10         # aliases may multiply the document's nodes this much ("billion laughs")
 MIN_BUDGET = 100_000       # ... but a small file may always expand to this many nodes
 MAX_FILE_BYTES = 64 << 20  # a 5,000-robot inventory is ~1 MiB
+# Values a document may build (its nodes, aliases expanded). The byte cap above does not bound the
+# cost: `x: [1,1,...]` is 2 bytes a value, and each value costs ~500 bytes and ~6 µs by the time a
+# robot is rendered (5 MB of it: 15 s, 1.2 GB). A 5,000-robot inventory is ~60,000 values.
+MAX_NODES = 250_000
 
 
 _COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
@@ -54,7 +58,25 @@ def _scalar(kind: type[str]) -> Any:
     return lambda c, node: kind(c.construct_scalar(cast(yaml.ScalarNode, node)))
 
 
-_Constructor.add_constructor("!vault", _scalar(Encrypted))
+def _encrypted(c: Any, node: yaml.Node) -> Encrypted:   # Any: as _scalar's constructors (stubs want a loader)
+    """A `!vault` value whose header is checked now, at its line (decrypting it later knows only the file).
+    Text with no vault header at all is left to the caller: the fleet file refuses any `!vault` with
+    its own advice."""
+    from rosdeploy import vault   # imports this module
+
+    value = Encrypted(c.construct_scalar(cast(yaml.ScalarNode, node)))
+    data = value.encode("ascii", "replace")
+    if not vault.is_encrypted(data):
+        return value
+    try:
+        vault.check_header(data, "")
+    except InputError as exc:
+        raise yaml.constructor.ConstructorError(None, None, f"!vault value: {exc.problems[0].message}",
+                                                node.start_mark) from None
+    return value
+
+
+_Constructor.add_constructor("!vault", _encrypted)
 _Constructor.add_constructor("!unsafe", _scalar(Unsafe))
 
 
@@ -128,21 +150,25 @@ def load_data(text: str, path: str = "<text>") -> Any:
         raise InputError([Problem(path, node.start_mark.line + 1, "", f"invalid YAML: {exc}")]) from exc
 
 
-def read_bytes(path: str) -> bytes:
-    """A configuration file's bytes: a regular file of bounded size, or a file problem."""
+def read_bytes(path: str, limit: int = MAX_FILE_BYTES, what: str = "a YAML file") -> bytes:
+    """A configuration file's bytes: a regular file of at most `limit` bytes, or a file problem
+    (`what` the file should be, for the message)."""
     try:
         # O_NONBLOCK: opening a FIFO for reading would otherwise wait for a writer, forever.
         with os.fdopen(os.open(path, os.O_RDONLY | os.O_NONBLOCK), "rb") as handle:
             info = os.fstat(handle.fileno())
             if not stat.S_ISREG(info.st_mode):   # /dev/zero, a FIFO: reading would never end
-                raise InputError([Problem(path, None, "", "not a regular file: give the path of a YAML file")])
-            data = handle.read(MAX_FILE_BYTES + 1)
+                raise InputError([Problem(path, None, "", f"not a regular file: give the path of {what}")])
+            data = handle.read(limit + 1)
     except OSError as exc:
         raise InputError([Problem(path, None, "", f"cannot read file: {exc.strerror}")]) from exc
-    if len(data) > MAX_FILE_BYTES:
-        raise InputError([Problem(path, None, "", f"larger than {MAX_FILE_BYTES >> 20} MiB: not a configuration "
-                                                  "file rosdeploy will read")])
+    if len(data) > limit:
+        raise InputError([Problem(path, None, "", f"larger than {_size(limit)}: not {what} rosdeploy will read")])
     return data
+
+
+def _size(limit: int) -> str:
+    return f"{limit >> 20} MiB" if limit >= 1 << 20 else f"{limit >> 10} KiB"
 
 
 def read_text(path: str) -> str:
@@ -173,23 +199,35 @@ def _error_text(exc: yaml.YAMLError) -> str:
 
 
 def _check_depth(text: str) -> None:
-    """Refuse nesting deeper than MAX_DEPTH before a composer recurses into it.
+    """Refuse nesting deeper than MAX_DEPTH, or more than MAX_NODES values, before a composer
+    builds them (composing costs ~4 µs a value, the event scan ~1 µs, and it stops at the bound).
 
-    Block nesting needs a column per level, so depth <= longest line + flow brackets; only a
-    file where that bound is high pays for the event scan.
+    Block nesting needs a column per level, so depth <= longest line + flow brackets, and each
+    value takes a character at least: only a file where either bound is high pays for the scan.
     """
     brackets = text.count("[") + text.count("{")
-    if brackets + max(map(len, text.splitlines()), default=0) <= MAX_DEPTH:
+    if brackets + max(map(len, text.splitlines()), default=0) <= MAX_DEPTH and len(text) <= MAX_NODES:
         return
-    depth = 0
+    depth = count = 0
     for event in yaml.parse(text, Loader=_Composer):
+        if isinstance(event, yaml.NodeEvent):     # a scalar, an alias or a collection's start
+            count += 1
+            if count > MAX_NODES:
+                _refuse_at(event, f"the document holds over {MAX_NODES} values: {_TOO_MANY_FIX}")
         if isinstance(event, yaml.CollectionStartEvent):
             depth += 1
             if depth > MAX_DEPTH:
-                raise yaml.MarkedYAMLError(problem=f"nested more than {MAX_DEPTH} levels deep",
-                                           problem_mark=cast(yaml.Mark, event.start_mark))
+                _refuse_at(event, f"nested more than {MAX_DEPTH} levels deep")
         elif isinstance(event, yaml.CollectionEndEvent):
             depth -= 1
+
+
+_TOO_MANY_FIX = ("the value past the limit is here; split the data, or keep large data in a file the service reads "
+                 "rather than in variables (each value costs memory and time for every robot)")
+
+
+def _refuse_at(event: yaml.Event, problem: str) -> None:
+    raise yaml.MarkedYAMLError(problem=problem, problem_mark=cast(yaml.Mark, event.start_mark))
 
 
 def _check_expansion(root: yaml.Node, path: str, text: str) -> None:
@@ -198,13 +236,14 @@ def _check_expansion(root: yaml.Node, path: str, text: str) -> None:
     Each distinct node's expanded size is computed once (bottom-up, memoized), so a
     billion-laughs file is refused in microseconds and nothing is ever expanded.
     A text without `*` has no alias (nor `<<: *merge`): every node is in the tree once, so it
-    is within its budget and cannot contain itself; the walk is skipped (0.1 s on 5,000 robots).
+    is within its budget (and MAX_NODES, counted by _check_depth) and cannot contain itself;
+    the walk is skipped (0.1 s on 5,000 robots).
     """
     if "*" not in text:
         return
     sizes: dict[int, int] = {}
     order = _postorder(root, path)
-    budget = max(MIN_BUDGET, MAX_EXPANSION * len(order))
+    budget = min(max(MIN_BUDGET, MAX_EXPANSION * len(order)), MAX_NODES)
     for node in order:
         children = _children(node)
         size = 1 + sum(sizes[id(c)] for c in children)

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import re
+import string
+import weakref
 from typing import Any
 
 from rosdeploy.inventory.draft import Draft, Origin, make_layer
@@ -12,20 +14,32 @@ _RANGE = re.compile(r"\[([0-9a-zA-Z]*):([0-9a-zA-Z]*)(?::(\d+))?\]")
 # Ten times the largest fleet rosdeploy is measured with: a range past it is a typo in a
 # bound (`[1:10000000]`), and expanding it would take the machine's memory first.
 MAX_RANGE_HOSTS = 50_000
-MAX_HOSTS = 100_000      # the same bound for an inventory's ranges taken together
+MAX_HOSTS = 100_000      # the same bound for an inventory's distinct hosts taken together
+# Host entries an inventory may write in all, ranges expanded: the same 25,000 hosts written in 2,000
+# groups are 50 million group memberships (20 s, 2 GB) though only MAX_HOSTS/4 distinct hosts.
+MAX_ENTRIES = 4 * MAX_HOSTS
+# Ansible's letter ranges index this (a-z, then A-Z): `[a:Z]` is 52 letters, `[A:z]` an error.
+LETTERS = string.ascii_letters
+
+# Entries written so far, per draft (Draft belongs to the parsers; this bound is the ranges' own).
+_entries: "weakref.WeakKeyDictionary[Draft, int]" = weakref.WeakKeyDictionary()
 
 
 def add_hosts(raw: str, group: str, host_vars: dict[str, Any], origin: Origin, draft: Draft) -> None:
     """Add one host entry (maybe `name:port` or a `name[01:03]` range) to a group."""
     spec, port = _split_port(raw)
     try:
-        names = _expand_range(spec)
+        count = _range_count(spec)
+        if count > MAX_RANGE_HOSTS:
+            raise ValueError(f"it names {count} hosts, more than {MAX_RANGE_HOSTS}: check its bounds")
+        names = _expanded(spec) if _spend(draft, count, raw, origin) else []
     except ValueError as exc:
         draft.problems.append(origin.problem((), f"invalid host range {raw!r}: {exc}"))
         return
-    if len(draft.hosts) + len(names) > MAX_HOSTS:
+    if len(draft.hosts) + sum(name not in draft.hosts for name in names) > MAX_HOSTS:
         draft.problems.append(origin.problem((), f"host range {raw!r} takes this inventory past {MAX_HOSTS} "
                                                  "hosts: check the ranges' bounds"))
+        _entries[draft] = MAX_ENTRIES + 1    # refused: later entries are skipped, not each reported
         return
     if port is not None:
         host_vars = {"ansible_port": port, **host_vars}
@@ -40,12 +54,21 @@ def _split_port(raw: str) -> tuple[str, int | None]:
     return (found[1], int(found[2])) if found else (raw, None)
 
 
-def _expand_range(spec: str) -> list[str]:
-    """`amr-[01:03]` → amr-01, amr-02, amr-03 (Ansible: zero padding kept, `[a:c]`, `[0:9:2]`)."""
-    count = _range_count(spec)
-    if count > MAX_RANGE_HOSTS:
-        raise ValueError(f"it names {count} hosts, more than {MAX_RANGE_HOSTS}: check its bounds")
-    return _expanded(spec)
+def _spend(draft: Draft, count: int, raw: str, origin: Origin) -> bool:
+    """Count `count` more entries against MAX_ENTRIES; False (and one problem, at the entry that
+    crossed the bound) once the inventory has written more, so later entries cost nothing."""
+    before = _entries.get(draft, 0)
+    _entries[draft] = after = before + count
+    if after > MAX_ENTRIES >= before:
+        draft.problems.append(origin.problem((), f"host entry {raw!r} takes this inventory past {MAX_ENTRIES} "
+                                                 "host entries, ranges expanded (the same hosts written in many "
+                                                 "groups): list them in one group and make it a child of the others"))
+    return after <= MAX_ENTRIES
+
+
+def entries_left(draft: Draft) -> bool:
+    """Whether the inventory may still add host entries (a parser skips host lines once it may not)."""
+    return _entries.get(draft, 0) <= MAX_ENTRIES
 
 
 def _range_count(spec: str) -> int:
@@ -57,12 +80,13 @@ def _range_count(spec: str) -> int:
             continue          # refused with its own message when expanded
         if start.isdigit() and end.isdigit():
             count *= max(0, (int(end) - int(start)) // stride + 1)
-        elif len(start) == len(end) == 1:
-            count *= max(0, (ord(end) - ord(start)) // stride + 1)
+        elif start in LETTERS and end in LETTERS and len(start) == len(end) == 1:
+            count *= max(0, (LETTERS.index(end) - LETTERS.index(start)) // stride + 1)
     return count
 
 
 def _expanded(spec: str) -> list[str]:
+    """`amr-[01:03]` → amr-01, amr-02, amr-03 (Ansible: zero padding kept, `[a:c]`, `[0:9:2]`)."""
     found = _RANGE.search(spec)
     if not found:
         return [spec]
@@ -83,12 +107,13 @@ def _range_items(start: str, end: str, stride: int) -> list[str]:
         width = len(start) if padded else 0
         numbers = range(int(start), int(end) + 1, stride)
         items = [str(n).zfill(width) for n in numbers]
-    elif len(start) == 1 and len(end) == 1 and start.isalpha() and end.isalpha():
-        items = [chr(c) for c in range(ord(start), ord(end) + 1, stride)]
+    elif len(start) == 1 and len(end) == 1 and start in LETTERS and end in LETTERS:
+        items = list(LETTERS[LETTERS.index(start):LETTERS.index(end) + 1:stride])
     else:
         raise ValueError("bounds must be both numbers or both single letters, e.g. [1:3] or [a:c]")
     if not items:
-        raise ValueError("the start is after the end")
+        order = ": letters run a-z then A-Z, as in Ansible ([a:Z] is all 52)" if start.isalpha() else ""
+        raise ValueError(f"the start is after the end{order}")
     return items
 
 

@@ -154,7 +154,7 @@ def _run(path: Path, args: list[str], draft: Draft,
         except OSError as exc:
             return refuse(f"cannot run it ({exc.strerror}): check its #! line, or remove its execute bit if it "
                           "is not a script")
-        stopped = _wait(proc, out.fileno(), err.fileno())
+        stopped = wait(proc, out.fileno(), err.fileno())
         if stopped == "time":
             return refuse(f"{command} did not finish within {TIMEOUT:g} s: fix the script or export its output "
                           "to a YAML file")
@@ -211,18 +211,20 @@ def _too_deep(data: Any) -> bool:
     return False
 
 
-def _wait(proc: subprocess.Popen, *outputs: int) -> str:
-    """Wait for the script: "" when it exited, "time" or "size" when it was stopped (with
-    everything it started) for running past TIMEOUT or printing more than MAX_OUTPUT. The
-    output goes to files, not pipes, so its size is known without reading it."""
-    deadline = time.monotonic() + TIMEOUT
+def wait(proc: subprocess.Popen, *outputs: int, timeout: float | None = None, limit: int | None = None) -> str:
+    """Wait for a script started in its own session: "" when it exited, "time" or "size" when it
+    was stopped (with everything it started) for running past `timeout` (TIMEOUT) or printing more
+    than `limit` (MAX_OUTPUT) bytes. The output goes to files, not pipes, so its size is known
+    without reading it."""
+    deadline = time.monotonic() + (TIMEOUT if timeout is None else timeout)
+    limit = MAX_OUTPUT if limit is None else limit
     while True:
         try:
             proc.wait(timeout=POLL)
             stopped = ""
         except subprocess.TimeoutExpired:
             stopped = "time" if time.monotonic() > deadline else ""
-        if sum(os.fstat(fd).st_size for fd in outputs) > MAX_OUTPUT:
+        if sum(os.fstat(fd).st_size for fd in outputs) > limit:
             stopped = "size"
         if stopped or proc.returncode is not None:
             break
