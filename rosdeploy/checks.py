@@ -32,6 +32,7 @@ from rosdeploy.fleet import problem_at, size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
 
 SEVERITIES = ("error", "warning", "info")
+TARGET_SCOPES = ("release", "service")    # rules that see one robot's release and nothing else
 ROBOTS = "{robots}"
 MB = 1024 * 1024
 STABLE_DEVICE_PREFIXES = ("/dev/robot/", "/dev/serial/by-id/", "/dev/serial/by-path/", "/dev/v4l/by-id/",
@@ -93,21 +94,40 @@ class Context:
 
 def run_checks(spec: FleetSpec, hosts: Sequence[Host],
                releases: Iterable[RenderedRelease] | Mapping[str, RenderedRelease], *,
-               all_hosts: Sequence[Host] = (), rules: Iterable[Rule] | None = None) -> list[Problem]:
+               all_hosts: Sequence[Host] = (), rules: Iterable[Rule] | None = None,
+               on_targets: Mapping[str, Sequence[tuple[Problem, str]]] | None = None) -> list[Problem]:
     """Every finding of every rule, merged across robots, sorted by severity, file and line.
 
     `all_hosts` is the whole inventory (robots outside --limit still talk DDS); default `hosts`.
+    `on_targets`: the release and service rules' findings, already found where each release was
+    rendered (TargetRules), as rule id -> [(problem, robot)] in robot order; they run again only
+    without it.
     """
-    ctx = make_context(spec, hosts, all_hosts, releases)
+    ctx = make_context(spec, hosts, all_hosts, releases if on_targets is None else {})
     found: dict[Problem, dict[str, None]] = defaultdict(dict)   # a finding -> the robots, in order (a set
     for r in (RULES.values() if rules is None else rules):       # with order: 5,000 robots share findings)
-        for problem, robot in _run_rule(r, ctx):
+        ran = on_targets.get(r.id, ()) if on_targets is not None and r.scope in TARGET_SCOPES else _run_rule(r, ctx)
+        for problem, robot in ran:
             if robot:
                 found[problem][robot] = None
             else:
                 found[problem]
     merged = [_with_robots(p, list(robots)) for p, robots in found.items()]
     return sorted(merged, key=sort_key)
+
+
+class TargetRules:
+    """The release and service rules on one robot's release, where it was just rendered (a
+    forked child, rosdeploy.forked): what run_checks would find on it, as (rule id, problem)."""
+
+    def __init__(self, spec: FleetSpec) -> None:
+        self.ctx = Context(spec, (), (), ())
+        self.rules = [r for r in RULES.values() if r.scope in TARGET_SCOPES]
+        self.located: dict[tuple, Problem] = {}
+
+    def __call__(self, host: Host, release: RenderedRelease) -> tuple[tuple[str, Problem], ...]:
+        target = parse_release(host, release)
+        return tuple((r.id, p) for r in self.rules for p in _on_target(r, self.ctx, target, self.located))
 
 
 def blocked_hosts(spec: FleetSpec, hosts: Sequence[Host]) -> set[str]:
@@ -135,20 +155,25 @@ def _run_rule(r: Rule, ctx: Context) -> Iterator[tuple[Problem, str]]:
     elif r.scope == "host":
         for host in ctx.hosts:
             yield from ((_stamp(p, r), host.name) for p in r.func(ctx, host))
-    elif r.scope == "release":
-        for t in ctx.targets:
-            yield from ((_stamp(p, r), t.host.name) for p in r.func(ctx, t))
     else:
-        # Most robots give the same findings (the message says {robots}): locate each one once.
-        located: dict[tuple[str, tuple, str], Problem] = {}
+        located: dict[tuple, Problem] = {}
         for t in ctx.targets:
-            for name, svc in t.services.items():
-                for keypath, message in r.func(ctx, t, name, svc if isinstance(svc, dict) else {}):
-                    p = located.get((name, keypath, message))
-                    if p is None:
-                        p = located[name, keypath, message] = _stamp(_service_problem(ctx.spec, name, keypath,
-                                                                                          message), r)
-                    yield p, t.host.name
+            yield from ((p, t.host.name) for p in _on_target(r, ctx, t, located))
+
+
+def _on_target(r: Rule, ctx: Context, t: Target, located: dict[tuple, Problem]) -> Iterator[Problem]:
+    """A release or service rule's findings on one robot's release."""
+    if r.scope == "release":
+        yield from (_stamp(p, r) for p in r.func(ctx, t))
+        return
+    # Most robots give the same findings (the message says {robots}): locate each one once.
+    for name, svc in t.services.items():
+        for keypath, message in r.func(ctx, t, name, svc if isinstance(svc, dict) else {}):
+            p = located.get((r.id, name, keypath, message))
+            if p is None:
+                p = located[r.id, name, keypath, message] = _stamp(_service_problem(ctx.spec, name, keypath,
+                                                                                    message), r)
+            yield p
 
 
 def _service_problem(spec: FleetSpec, name: str, keypath: tuple, message: str) -> Problem:

@@ -13,16 +13,22 @@ touched. So a command cannot forget the validation `validate` and `check` run.
 """
 from __future__ import annotations
 
+import functools
 import gc
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
+from rosdeploy import forked
 from rosdeploy.errors import InputError, Problem, RenderError
 from rosdeploy.fleet import load_fleet
 from rosdeploy.inventory import Inventory, load_inventory
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.vault import Vault
+
+if TYPE_CHECKING:
+    from rosdeploy.checks import TargetRules
+    from rosdeploy.render import Renderer
 
 # Scopes whose rules judge the inputs (fleet file + inventory) rather than a rendered release:
 # validate reports their warnings too, since the fix is in the user's own files.
@@ -95,9 +101,13 @@ def deployable(project: Project, hosts: Sequence[Host], on_release: OnRelease = 
     return releases, problems
 
 
+OnTargets = dict[str, list[tuple[Problem, str]]]     # rule id -> [(finding, robot)], robots in order
+
+
 def _render_all(project: Project, hosts: Sequence[Host], on_release: OnRelease = None,
-                ) -> tuple[dict[str, RenderedRelease], list[Problem]]:
-    """Render every robot whose inputs allow it; the problems are the render errors.
+                ) -> tuple[dict[str, RenderedRelease], list[Problem], OnTargets]:
+    """Render every robot whose inputs allow it: the releases, the render errors, and what the
+    release and service rules find on each release (checks.TargetRules, run where it rendered).
 
     A robot failing an input rule (a device or secret it lacks) is skipped: the rule
     already says what is wrong, in better words than the renderer could.
@@ -108,21 +118,35 @@ def _render_all(project: Project, hosts: Sequence[Host], on_release: OnRelease =
     try:
         renderer = Renderer(project.spec)
     except RenderError as exc:
-        return {}, list(exc.problems)
+        return {}, list(exc.problems), {}
     releases: dict[str, RenderedRelease] = {}
     failed: dict[tuple, tuple[Problem, list[str]]] = {}
-    for host in hosts:
-        if host.name in blocked:
-            continue
-        try:
-            releases[host.name] = renderer.render(host)
+    on_targets: OnTargets = {}
+    todo = [host for host in hosts if host.name not in blocked]
+    work = functools.partial(_render_one, renderer, checks.TargetRules(project.spec))
+    for host, (outcome, found) in zip(todo, forked.mapped(work, todo), strict=True):
+        if isinstance(outcome, RenderedRelease):
+            releases[host.name] = outcome
+            for rule_id, p in found:
+                on_targets.setdefault(rule_id, []).append((p, host.name))
             if on_release is not None:
-                on_release(releases[host.name])
-        except RenderError as exc:
-            for p in exc.problems:
-                same = (p.file, p.line, p.key, p.message.replace(host.name, ""))
-                failed.setdefault(same, (p, []))[1].append(host.name)
-    return releases, [_same_on(p, robots) for p, robots in failed.values()]
+                on_release(outcome)
+            continue
+        for p in outcome:
+            same = (p.file, p.line, p.key, p.message.replace(host.name, ""))
+            failed.setdefault(same, (p, []))[1].append(host.name)
+    return releases, [_same_on(p, robots) for p, robots in failed.values()], on_targets
+
+
+def _render_one(renderer: Renderer, rules: TargetRules, host: Host,
+                ) -> tuple[RenderedRelease | tuple[Problem, ...], tuple[tuple[str, Problem], ...]]:
+    """One robot's release and what the release rules find on it, or what stops it (values that
+    pickle: forked.mapped may run this in a child)."""
+    try:
+        release = renderer.render(host)
+    except RenderError as exc:
+        return tuple(exc.problems), ()
+    return release, rules(host, release)
 
 
 def _same_on(p: Problem, robots: list[str]) -> Problem:
@@ -137,9 +161,10 @@ def prepare(project: Project, hosts: Sequence[Host], on_release: OnRelease = Non
     """Render every robot once and run every rule on the result: releases and findings, errors first."""
     from rosdeploy import checks, ready
     with gc_paused():
-        releases, problems = _render_all(project, hosts, on_release)
+        releases, problems, on_targets = _render_all(project, hosts, on_release)
         problems += ready.host_problems(project.spec, hosts)     # inventory `ready:` / `window:` overrides
-        found = checks.run_checks(project.spec, hosts, releases, all_hosts=tuple(project.inventory.hosts.values()))
+        found = checks.run_checks(project.spec, hosts, releases, all_hosts=tuple(project.inventory.hosts.values()),
+                                  on_targets=on_targets)
     return releases, sorted(problems + found, key=checks.sort_key)
 
 
