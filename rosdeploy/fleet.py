@@ -640,7 +640,7 @@ def _volumes(r: Reader, kp: KeyPath, value: Any) -> Any:
     mounts = _listof(_mount, "bind mounts")(r, kp, value)
     seen: dict[str, int] = {}
     for i, mount in enumerate(mounts):
-        target = mount.split(":")[1]
+        target = _mount_target(mount)
         if target in seen:
             r.error(kp + (i,), f"{target} is already the container path of volumes[{seen[target]}]: compose "
                                "refuses two mounts at one path; mount one of them elsewhere")
@@ -648,6 +648,11 @@ def _volumes(r: Reader, kp: KeyPath, value: Any) -> Any:
     if len(seen) < len(mounts):
         raise Invalid()
     return mounts
+
+
+def _mount_target(mount: str) -> str:
+    """The container path of a bind mount "/robot:/container[:mode]" as _mount keeps it (normalized)."""
+    return normal_path(mount.split(":")[1])
 
 
 def _compose_extra(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -1117,17 +1122,34 @@ def _check_file_refs(r: Reader, services: dict, files: Any) -> None:
     known = files if isinstance(files, dict) else {}
     declared = r.names(("files",), known) if isinstance(files, dict) else []
     for name in services:
-        targets: dict[str, str] = {}
-        for i, ref in r.items(("services", name, "files")):
-            if ref not in declared:
-                from rosdeploy.suggest import did_you_mean
-                hint = did_you_mean(ref, declared) or "add it there, or fix the name"
-                r.error(("services", name, "files", i), f"no file is named `{ref}` in the top-level `files:`: {hint}")
-            elif isinstance(known.get(ref), dict):
-                target = known[ref]["target"]
-                if target in targets:
-                    r.error(("services", name, "files", i), f"`{ref}` and `{targets[target]}` both mount at {target}")
-                targets[target] = ref
+        targets = _file_targets(r, name, known, declared)
+        _check_volumes_at_files(r, name, targets)
+
+
+def _file_targets(r: Reader, service: str, known: dict, declared: list[str]) -> dict[str, str]:
+    """The container paths (normalized, as volumes' are) of the files a service mounts -> file name."""
+    targets: dict[str, str] = {}
+    for i, ref in r.items(("services", service, "files")):
+        if ref not in declared:
+            from rosdeploy.suggest import did_you_mean
+            hint = did_you_mean(ref, declared) or "add it there, or fix the name"
+            r.error(("services", service, "files", i), f"no file is named `{ref}` in the top-level `files:`: {hint}")
+        elif isinstance(known.get(ref), dict):
+            target = normal_path(known[ref]["target"])
+            if target in targets:
+                r.error(("services", service, "files", i), f"`{ref}` and `{targets[target]}` both mount at {target}")
+            targets.setdefault(target, ref)
+    return targets
+
+
+def _check_volumes_at_files(r: Reader, service: str, targets: dict[str, str]) -> None:
+    """A bind mount where one of the service's files is mounted: compose refuses the file ("duplicate
+    mount point"), or one of the two would silently hide the other."""
+    for i, mount in r.items(("services", service, "volumes")):
+        target = _mount_target(mount)   # items _mount refused are left out: this one is well formed
+        if target in targets:
+            r.error(("services", service, "volumes", i), f"{target} is also the target of files.{targets[target]}: "
+                                                         "one container path takes one mount; change one")
 
 
 def problem_at(spec: FleetSpec, keypath: KeyPath, message: str, **kw: Any) -> Problem:

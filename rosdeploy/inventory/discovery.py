@@ -11,8 +11,8 @@ from rosdeploy.inventory.ini_parser import check_undeclared, parse_ini
 from rosdeploy.inventory.known import MAYBE_NOT_INVENTORY, SCRIPT_EXTS, SKIPPED_EXTS, YAML_EXTS
 from rosdeploy.inventory.script import is_script, parse_script
 from rosdeploy.inventory.yaml_parser import parse_yaml
-from rosdeploy.vault import Vault
-from rosdeploy.yamlsrc import Doc, Encrypted
+from rosdeploy.vault import Vault, WrongPassword, is_encrypted
+from rosdeploy.yamlsrc import Doc, Encrypted, KeyPath
 
 
 class Reader:
@@ -48,24 +48,45 @@ class Reader:
             problems.extend(exc.problems)
             return None
         revealed: set[str] = set()
-        data = self._reveal(doc.data, str(path), revealed)
+        data = self._reveal(doc.data, doc, (), revealed)
         return Origin(Doc(doc.path, data, doc.lines), (), secret, frozenset(revealed))
 
-    def _reveal(self, value: Any, path: str, revealed: set[str]) -> Any:
+    def _reveal(self, value: Any, doc: Doc, kp: KeyPath, revealed: set[str]) -> Any:
         """`value` with every `!vault` scalar (Ansible's encrypt_string) decrypted."""
         if isinstance(value, Encrypted):
-            try:
-                plain = self.vault.decrypt(value.encode("ascii", "replace"), path).decode("utf-8")
-            except UnicodeDecodeError:
-                raise VaultError([Problem(path, None, "", "a !vault value is not UTF-8 text once "
-                                                          "decrypted: encrypt text only")]) from None
+            plain = self._open(value, doc, kp)
             revealed.add(plain)
             return plain
         if isinstance(value, dict):
-            return {key: self._reveal(item, path, revealed) for key, item in value.items()}
+            return {key: self._reveal(item, doc, kp + (key,), revealed) for key, item in value.items()}
         if isinstance(value, list):
-            return [self._reveal(item, path, revealed) for item in value]
+            return [self._reveal(item, doc, kp + (i,), revealed) for i, item in enumerate(value)]
         return value
+
+    def _open(self, value: Encrypted, doc: Doc, kp: KeyPath) -> str:
+        """One `!vault` value's plaintext. Its problems are reported at its key's line: decrypting
+        knows only the file, and a vars file may hold many of them."""
+        data = value.encode("ascii", "replace")
+        name = kp[-1] if kp and isinstance(kp[-1], str) else "NAME"
+        command = f"`rosdeploy vault encrypt-string --name {name}` and paste its output here"
+        if not is_encrypted(data):   # never quoted: it may be the secret itself, pasted unencrypted
+            raise VaultError([doc.problem(kp, "this `!vault` value has no $ANSIBLE_VAULT or $ROSDEPLOY_VAULT "
+                                              f"header, so it is not encrypted: encrypt it with {command}")])
+        try:
+            return self.vault.decrypt(data, doc.path).decode("utf-8")
+        except WrongPassword as exc:
+            hint = f"; if it was encrypted with another password, re-encrypt it with {command}"
+            raise WrongPassword(_at(exc, doc, kp, hint)) from None
+        except VaultError as exc:
+            raise VaultError(_at(exc, doc, kp)) from None
+        except UnicodeDecodeError:
+            raise VaultError([doc.problem(kp, "a !vault value is not UTF-8 text once decrypted: "
+                                              "encrypt text only")]) from None
+
+
+def _at(error: VaultError, doc: Doc, kp: KeyPath, hint: str = "") -> list[Problem]:
+    """The problems of `error` about `doc` moved to the line of `kp` (those about a password file stay)."""
+    return [doc.problem(kp, p.message + hint) if p.file == doc.path else p for p in error.problems]
 
 
 def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
