@@ -5,8 +5,10 @@
 Builds the same project as bench/render_bench.py (YAML inventory, group_vars, 3 services,
 devices, udev, a vault file, one robot in ten with a GPU) for each robot count, then
 runs `python -m rosdeploy validate|check|render` on it in a subprocess, as a user would.
-Reports the median wall time and the peak RSS of the child (resource.getrusage of
-RUSAGE_CHILDREN, read after each run: one child per measurement, so the peak is its own).
+Reports the median wall time of the rosdeploy process (start to exit, as `time rosdeploy ...`
+shows it; timed by a probe process that starts it, so the probe's own start-up is left out) and
+its peak RSS (resource.getrusage of RUSAGE_CHILDREN, read after each run: one child per
+measurement, so the peak is its own).
 
 `--against DIR` measures another checkout's code (e.g. a worktree of main) in the same run,
 alternating the two run by run so both see the same load, and prints the ratio of the
@@ -51,14 +53,12 @@ def measure(fleet: Path, command: str, out: Path, code: Path = REPO) -> Run:
     # Each run starts from a quiet disk: without this, the writeback of the runs before (30,000
     # files a render of 5,000 robots) slows the next one's file creation several times over.
     os.sync()
-    t0 = time.perf_counter()
     # A fresh interpreter per run: RUSAGE_CHILDREN's ru_maxrss is the largest child so far,
-    # so each measurement runs in a grandchild whose own peak the child reports.
+    # so each measurement runs in a grandchild whose own peak and wall the child reports.
     probe = [sys.executable, "-c", _PROBE, *argv]
     done = subprocess.run(probe, cwd=code, env=_env(code), capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    exit_code, rss, cpu = done.stdout.strip().rpartition("\n")[2].split()
-    return wall, int(rss) / 1024, int(exit_code), float(cpu)
+    exit_code, rss, cpu, wall = done.stdout.strip().rpartition("\n")[2].split()
+    return float(wall), int(rss) / 1024, int(exit_code), float(cpu)
 
 
 def _env(code: Path) -> dict[str, str]:
@@ -75,12 +75,16 @@ def startup() -> float:
     return time.perf_counter() - t0
 
 
-# Runs argv, then prints "<exit code> <peak RSS of that child in KiB> <its user+system CPU seconds>".
+# Runs argv, then prints "<exit code> <peak RSS of that child in KiB> <its user+system CPU seconds>
+# <its wall seconds>": the wall of the rosdeploy process alone, from its start to its exit, what
+# `time rosdeploy ...` shows (the probe's own interpreter start is not rosdeploy's time).
 _PROBE = """
-import resource, subprocess, sys
+import resource, subprocess, sys, time
+t0 = time.perf_counter()
 code = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
+wall = time.perf_counter() - t0
 usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-print(code, usage.ru_maxrss, usage.ru_utime + usage.ru_stime)
+print(code, usage.ru_maxrss, usage.ru_utime + usage.ru_stime, wall)
 """
 
 
