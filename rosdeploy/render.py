@@ -32,7 +32,8 @@ from rosdeploy.files import FileRenderer
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
 from rosdeploy.inventory.templating import secret_read, secret_reads
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
-from rosdeploy.sandbox import ContainedLoader, Layered, Sandbox, describe, render_value, value_template
+from rosdeploy.sandbox import (ContainedLoader, Layered, Sandbox, ShippedSandbox, describe, render_value,
+                               value_template)
 from rosdeploy.yamlsrc import Doc
 
 # rosdeploy/templates is a link to the repo's top-level templates/ in a checkout, and a real
@@ -311,17 +312,17 @@ def _device_group(path: str, logical: str, udev: UdevDevice | None) -> str | Non
 # ----------------------------------------------------------------- renderer
 
 def _builtin_environment() -> jinja2.Environment:
-    """rosdeploy's own templates, where no override replaces them: code shipped with rosdeploy, run
-    without the sandbox's per-value checks (a sixth of the render time). What they print is bounded
-    by the inputs, which the loaders bound; every value a user writes (fleet values, `files:`, an
-    override folder) still renders in the sandbox (Renderer._environment)."""
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(TEMPLATE_DIR)), undefined=jinja2.StrictUndefined,
-                             trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True, auto_reload=False,
-                             autoescape=False)
+    """rosdeploy's own templates, where no override replaces them: code shipped with rosdeploy,
+    rendered in Jinja's sandbox without rosdeploy's bounds on top (sandbox.ShippedSandbox).
+    Every value a user writes (fleet values, `files:`, an override folder) renders in the
+    bounded sandbox (Renderer._environment)."""
+    env = ShippedSandbox(plain_types=_VIEWS, loader=jinja2.FileSystemLoader(str(TEMPLATE_DIR)),
+                         trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True, auto_reload=False)
     env.filters.update(FILTERS)
     return env
 
 
+_VIEWS = (ServiceView, HealthView, UdevView, Host, FleetSpec)
 _BUILTIN = _builtin_environment()
 
 
@@ -374,7 +375,7 @@ class Renderer:
         """Sandboxed (rosdeploy.sandbox): fleet values and template folders are configuration, not code."""
         loaders: list[jinja2.BaseLoader] = [ContainedLoader(str(self.override))] if self.override else []
         loaders.append(jinja2.FileSystemLoader(str(TEMPLATE_DIR)))
-        env = Sandbox(plain_types=(ServiceView, HealthView, UdevView, Host, FleetSpec),
+        env = Sandbox(plain_types=_VIEWS,
                       loader=jinja2.ChoiceLoader(loaders),
                       trim_blocks=True, lstrip_blocks=True,
                       keep_trailing_newline=True, auto_reload=False)

@@ -428,6 +428,19 @@ def test_template_override_dir_wins(tmp_path: Path) -> None:
     assert "_partial" not in files(rel) and "compose.yml" in files(rel)
 
 
+def test_every_template_renders_sandboxed_and_an_override_in_the_bounded_sandbox(tmp_path: Path) -> None:
+    from jinja2.sandbox import SandboxedEnvironment
+
+    from rosdeploy.sandbox import Sandbox
+    (tmp_path / "logrotate.conf.j2").write_text("{{ (host.name ~ ' ') * 10**6 }}\n")
+    renderer = Renderer(make_spec(templates=str(tmp_path)))
+    for out, template in renderer.templates.items():
+        assert isinstance(template.environment, SandboxedEnvironment), out
+        assert isinstance(template.environment, Sandbox) == (out == "logrotate.conf"), out
+    with pytest.raises(RenderError, match="would exceed"):     # the bounds hold in the override
+        renderer.render(make_host())
+
+
 def test_relative_template_dir_is_relative_to_fleet_file(tmp_path: Path) -> None:
     (tmp_path / "tpl").mkdir()
     (tmp_path / "tpl" / "logrotate.conf.j2").write_text("x\n")
