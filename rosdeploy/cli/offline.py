@@ -112,10 +112,11 @@ def _render_to(root: Path, render: Callable[[Any], tuple[dict[str, RenderedRelea
                ) -> tuple[dict[str, RenderedRelease], list[Problem]]:
     """Render (every rule run) and write each robot's folder under root: while rendering, in a child
     process (writeout.Writer), or afterwards where it cannot start. Nothing lands when a rule refuses."""
+    from rosdeploy import forked
     from rosdeploy.cli import writeout
 
     try:
-        writer = writeout.Writer(root) if writeout.can_fork() else None
+        writer = writeout.Writer(root) if forked.can_fork() else None
     except OSError:      # --out is a file, read-only...: said after the fleet's own errors, as without a writer
         writer = None
     try:

@@ -26,13 +26,6 @@ PIPE_BYTES = 1 << 20     # /proc/sys/fs/pipe-max-size's default
 Files = list[tuple[str, int, bytes]]     # (name inside the robot's folder, mode, content)
 
 
-def can_fork() -> bool:
-    """fork() exists and this process runs one thread (a child of a threaded process could
-    inherit a lock some other thread held)."""
-    import threading
-    return hasattr(os, "fork") and threading.active_count() == 1
-
-
 def files_of(release: RenderedRelease) -> Files:
     for f in release.files:
         if f.name.startswith("/") or ".." in f.name.split("/"):

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from rosdeploy import forked
 from rosdeploy.cli import offline, writeout
 from rosdeploy.errors import InputError
 from rosdeploy.model import RenderedFile, RenderedRelease
@@ -15,7 +16,7 @@ from rosdeploy.model import RenderedFile, RenderedRelease
 def way(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
     """Each test both ways: through the child writer, and written after the checks (no fork). The
     child is forced even if an earlier test left a thread behind (can_fork would refuse then)."""
-    monkeypatch.setattr(writeout, "can_fork", lambda: request.param == "child")
+    monkeypatch.setattr(forked, "can_fork", lambda: request.param == "child")
     return request.param
 
 
