@@ -153,10 +153,11 @@ def _counting(items: Iterator[Any], cost: int, budget: list[int]) -> Iterator[An
         yield item
 
 
-def _body_cost(node: jinja2.nodes.For) -> int:
-    """What one iteration of `node` costs, roughly: the nodes of its body and test, not those of a
-    loop inside it (charged by its own items)."""
-    todo: list[jinja2.nodes.Node] = [*node.body, *([node.test] if node.test else [])]
+def _body_cost(node: jinja2.nodes.For | jinja2.nodes.Macro | jinja2.nodes.CallBlock) -> int:
+    """What one iteration of a loop or one call of a macro costs, roughly: the nodes of its body
+    (and a loop's test), not those of a loop inside it (charged by its own items)."""
+    test = getattr(node, "test", None)
+    todo: list[jinja2.nodes.Node] = [*node.body, *([test] if test else [])]
     cost = 1
     while todo:
         child = todo.pop()
@@ -164,6 +165,22 @@ def _body_cost(node: jinja2.nodes.For) -> int:
         if not isinstance(child, jinja2.nodes.For):
             todo.extend(child.iter_child_nodes())
     return cost
+
+
+def _charge_each_call(node: jinja2.nodes.Macro | jinja2.nodes.CallBlock) -> None:
+    """A macro's body is charged by its size each time it runs: a call counts as one node where
+    it is written, so a macro of 50,000 expressions called in a loop was nearly free."""
+    if not getattr(node, "_counted", False):
+        charged = jinja2.nodes.Call(jinja2.nodes.EnvironmentAttribute("charged"),
+                                    [jinja2.nodes.Const(_body_cost(node))], [], None, None, lineno=node.lineno)
+        node.body = [jinja2.nodes.ExprStmt(charged, lineno=node.lineno), *node.body]
+        node._counted = True  # type: ignore[attr-defined]
+
+
+def charged(units: int) -> str:
+    """charge() for a template: one call of a macro; writes nothing."""
+    charge(units)
+    return ""
 
 
 def searched(container: Any, context: Any = None) -> Any:
@@ -202,6 +219,14 @@ class _BoundedCodeGenerator(CodeGenerator):
                                           None, lineno=node.iter.lineno)
             node._counted = True  # type: ignore[attr-defined]
         super().visit_For(node, frame)
+
+    def visit_Macro(self, node: jinja2.nodes.Macro, frame: Frame) -> None:
+        _charge_each_call(node)
+        super().visit_Macro(node, frame)
+
+    def visit_CallBlock(self, node: jinja2.nodes.CallBlock, frame: Frame) -> None:
+        _charge_each_call(node)
+        super().visit_CallBlock(node, frame)
 
     def visit_Operand(self, node: jinja2.nodes.Operand, frame: Frame) -> None:
         # `x in big` inside a loop is a loop too: charged by searched()
@@ -250,6 +275,7 @@ class Sandbox(_PlainReads):
     concat = staticmethod(_bounded_concat)
     counted = staticmethod(counted)
     searched = staticmethod(searched)
+    charged = staticmethod(charged)
 
     def __init__(self, plain_types: tuple[type, ...] = (), **kwargs: Any) -> None:
         """`plain_types`: see _PlainReads."""

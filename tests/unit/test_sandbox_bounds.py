@@ -269,6 +269,10 @@ def test_template_output_is_counted_as_it_comes() -> None:
     "{% for i in range(2) recursive %}{% if loop.depth < 40 %}{{ loop(range(2)) }}{% endif %}{% endfor %}",
     "{{ range(99999)|select('in', big)|list|length }}",
     "{{ range(99999)|reject('in', big)|list|length }}",
+    # a macro's body is charged each call: written once, called 100,000 times
+    "{% macro m(x) %}" + "{{ x }}" * 5000 + "{% endmacro %}{% for i in range(100000) %}{{ m(i)|length }}{% endfor %}",
+    "{% macro m() %}{{ caller() }}{% endmacro %}{% for i in range(100000) %}{% call m() %}" + "{{ i }}" * 5000
+    + "{% endcall %}{{ '' }}{% endfor %}",
 ])
 def test_a_template_file_that_loops_too_long_is_refused(source: str) -> None:
     """No output, so no output bound: these ran for hours (or forever)."""
@@ -294,6 +298,8 @@ def test_a_quadratic_in_test_in_one_value_is_refused() -> None:
     ("{{ dict([('a', 1)]) }}", "{'a': 1}"),
     ("{{ (2 ** 2000 * 2 ** 2000)|string|length }}", "1205"),
     ("{{ [1, 'a', none, 1.5, true, (2,), {'k': [3]}] }}", "[1, 'a', None, 1.5, True, (2,), {'k': [3]}]"),
+    ("{% macro m(x) %}[{{ x }}]{% endmacro %}{% for i in range(3) %}{{ m(i) }}{% endfor %}", "[0][1][2]"),
+    ("{% macro m(x) %}[{{ x }}{{ caller() }}]{% endmacro %}{% call m(2) %}in{% endcall %}", "[2in]"),
 ])
 def test_ordinary_loops_and_sequences_still_work(source: str, expect: str) -> None:
     assert jinja2_file(source) == expect
