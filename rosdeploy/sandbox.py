@@ -174,7 +174,7 @@ def _charge_each_call(node: jinja2.nodes.Macro | jinja2.nodes.CallBlock) -> None
         charged = jinja2.nodes.Call(jinja2.nodes.EnvironmentAttribute("charged"),
                                     [jinja2.nodes.Const(_body_cost(node))], [], None, None, lineno=node.lineno)
         node.body = [jinja2.nodes.ExprStmt(charged, lineno=node.lineno), *node.body]
-        node._counted = True  # type: ignore[attr-defined]
+        node._counted = True  # type: ignore[union-attr]  # visit_Macro may see the same node again
 
 
 def charged(units: int) -> str:
