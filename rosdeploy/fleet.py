@@ -354,18 +354,21 @@ def _boolean(r: Reader, kp: KeyPath, value: Any) -> Any:
     return value
 
 
-def _integer(low: int, high: int | None = None) -> Convert:
+# Docker and Go read counts (retries, max-file) as 64-bit numbers; beyond 2**31 a count is a typo.
+MAX_COUNT = 2**31 - 1
+
+
+def _integer(low: int, high: int = MAX_COUNT) -> Convert:
     def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
-        if isinstance(value, bool) or not isinstance(value, int) or value < low or (high is not None and value > high):
-            top = f" and {high}" if high is not None else ""
-            raise Invalid(f"must be a whole number {'between ' + str(low) + top if top else '>= ' + str(low)}; "
-                          f"got {_kind(value)}")
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise Invalid(f"must be a whole number >= {low} and <= {high}; got {_kind(value)}")
         return value
     return convert
 
 
 def _positive(r: Reader, kp: KeyPath, value: Any) -> Any:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value <= 0:
+    # not `.inf` (a rate no topic reaches) nor `.nan` (which is not <= 0 either)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < math.inf:
         raise Invalid(f"must be a number above 0; got {_kind(value)}")
     return float(value)
 
@@ -1112,6 +1115,10 @@ def _robot_file(r: Reader, kp: KeyPath, value: Any) -> Any:
     if not ABSOLUTE_PATH_RE.fullmatch(target) or ".." in target.split("/") or target.endswith("/"):
         raise Invalid(f"{target!r} must be an absolute file path in the container, "
                       "e.g. /config/params.yaml", ("target",))
+    if len(target) > 4096 or max(map(len, target.split("/"))) > 255:
+        # its name is a file of the release (store/<digest>/<name>): render would fail to write it
+        raise Invalid(f"a path of {len(target)} characters: Linux allows 4096, and 255 for each name in it; "
+                      "shorten it, e.g. /config/params.yaml", ("target",))
     taken = managed_mount(target)
     if taken:
         raise Invalid(f"{target} is where rosdeploy mounts {taken} itself: choose another path", ("target",))

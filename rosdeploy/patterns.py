@@ -251,7 +251,7 @@ def _matcher(base: str, where: str) -> Callable[[str], bool]:
     if base.startswith("~"):
         try:
             regex = re.compile(base[1:])
-        except re.error as exc:
+        except (re.error, OverflowError, RecursionError) as exc:   # `a{99999999999}`: OverflowError
             raise _error(where, f"invalid regular expression {base!r}: {exc}; fix it or use a glob") from exc
         return lambda name: regex.match(name) is not None
     if _GLOB_CHARS & set(base):

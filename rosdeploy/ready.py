@@ -26,6 +26,7 @@ is no container to ask. The lock file is a file on the robot and is checked rega
 from __future__ import annotations
 
 import json
+import math
 import re
 import time
 from dataclasses import dataclass
@@ -37,7 +38,8 @@ from rosdeploy.yamlsrc import Doc, dotted
 
 # The comparison keys of a topic condition, as YAML-friendly words.
 OPS = {"is": "==", "is_not": "!=", "at_least": ">=", "at_most": "<=", "above": ">", "below": "<"}
-FIELD_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+# ROS 2 field names start with a letter: `__class__.__init__.__globals__` never reaches the probe's getattr
+FIELD_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*(\.[A-Za-z][A-Za-z0-9_]*)*")
 TOPIC_RE = re.compile(r"(?!.*__)(/[A-Za-z_][A-Za-z0-9_]*)+")   # ROS 2 names: no `__` anywhere
 LOCK_PATH_RE = re.compile(r"(~/|/)[A-Za-z0-9_.@+-]+(/[A-Za-z0-9_.@+-]+)*")
 SERVICE_RE = re.compile(r"[a-z0-9][a-z0-9_-]{0,62}")
@@ -172,6 +174,9 @@ def _topic(r: Any, kp: tuple, value: dict) -> Condition | None:
         return None
     if not isinstance(expected, (str, int, float, bool)):
         r.error(kp + (ops[0],), "must be a string, number or true/false")
+        return None
+    if isinstance(expected, float) and not math.isfinite(expected):   # `.nan` equals nothing: never ready
+        r.error(kp + (ops[0],), f"must be a finite number; got {expected!r}")
         return None
     if OPS[ops[0]] not in ("==", "!=") and (isinstance(expected, bool) or not isinstance(expected, (int, float))):
         r.error(kp + (ops[0],), f"`{ops[0]}` compares numbers; got {expected!r}")

@@ -32,6 +32,9 @@ MAX_FILE_BYTES = 64 << 20  # a 5,000-robot inventory is ~1 MiB
 # cost: `x: [1,1,...]` is 2 bytes a value, and each value costs ~500 bytes and ~6 µs by the time a
 # robot is rendered (5 MB of it: 15 s, 1.2 GB). A 5,000-robot inventory is ~60,000 values.
 MAX_NODES = 250_000
+# An integer's size. Python refuses to write one of over 4,300 digits (str() raises ValueError),
+# and `0x` + 4,000 hex digits builds one: every message or JSON that shows it would crash.
+MAX_INT_BITS = 14_000      # about 4,200 decimal digits
 
 
 _COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
@@ -298,14 +301,24 @@ def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: s
         return _build_mapping(node, keypath, lines, path, c, duplicates)
     if isinstance(node, yaml.SequenceNode):
         return [_build(item, keypath + (i,), lines, path, c, duplicates) for i, item in enumerate(node.value)]
+    return _scalar_value(node, keypath, path, c)
+
+
+def _scalar_value(node: yaml.Node, keypath: KeyPath, path: str, c: _Constructor) -> Any:
+    """A key's or a value's scalar, refused at its line when Python cannot hold or write it."""
     try:
-        return c.construct_object(node, deep=True)
+        value = c.construct_object(node, deep=True)
     except yaml.YAMLError as exc:
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
                                   f"invalid value: {_error_text(exc)}")]) from exc
     except ValueError as exc:   # an integer of over 4,300 digits (Python's own bound)
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
                                   f"invalid value: {str(exc)[:120]}")]) from exc
+    if isinstance(value, int) and value.bit_length() > MAX_INT_BITS:
+        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
+                                  "a number of over 4,000 digits: no setting takes one; write a smaller "
+                                  "number, or quote it for text")])
+    return value
 
 
 def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath, int], path: str,
@@ -320,7 +333,7 @@ def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath
         if not isinstance(key_node, yaml.ScalarNode):
             raise InputError([Problem(path, key_node.start_mark.line + 1, dotted(keypath),
                                       "a mapping key must be a plain value, not a list or mapping")])
-        key = c.construct_object(key_node, deep=True)
+        key = _scalar_value(key_node, keypath, path, c)
         child = keypath + (key,)
         if key in out:
             then = "keep one" if duplicates is None else "the last one is used, as in Ansible; keep one"

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import argparse
 import getpass
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from rosdeploy.cli.common import add_command, add_fleet_args, inventory_targets, path_arg
 from rosdeploy.cli.vault import vault_from_args
-from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem
+from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
 from rosdeploy.output import Output
 
 if TYPE_CHECKING:   # model.py costs 7 ms of dataclasses at import; --help needs none of it
@@ -94,6 +95,9 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
 
     project, hosts = _load(args, out)
     root = Path(args.out)
+    if os.path.realpath(root) == "/":   # robot `etc` would merge its logrotate.conf & co into /etc
+        raise InputError([Problem(str(root), None, "--out", "the filesystem root: render writes a folder "
+                                  "per robot into --out; give a folder of its own, e.g. /tmp/release")])
     releases, warnings = _render_to(root, lambda sink: deployable(project, hosts, sink))   # or exit 2
     for warning in warnings:
         out.warn(f"{warning.severity}: {warning}")

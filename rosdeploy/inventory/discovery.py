@@ -89,9 +89,18 @@ def _at(error: VaultError, doc: Doc, kp: KeyPath, hint: str = "") -> list[Proble
     return [doc.problem(kp, p.message + hint) if p.file == doc.path else p for p in error.problems]
 
 
+def is_dir(path: Path) -> bool:
+    """Path.is_dir(), False for a path that cannot be looked at: Python 3.11 raises on EACCES
+    (a folder under /proc, or another user's), where the caller only asks whether to walk it."""
+    try:
+        return path.is_dir()
+    except OSError:
+        return False
+
+
 def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
     """Parse the inventory file(s); returns the directory holding group_vars/ and host_vars/."""
-    if root.is_dir():
+    if is_dir(root):
         files, base = _inventory_files(root, draft.problems), root
         if not files and not draft.problems:
             draft.problems.append(Problem(str(root), None, "", "no inventory file in this directory: "
@@ -112,7 +121,7 @@ def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
         if path.suffix in YAML_EXTS:
             if (origin := reader.load(path, read[0], read[1], draft.problems)) is not None:
                 parse_yaml(origin, draft)
-        elif path.name.endswith(MAYBE_NOT_INVENTORY) and root.is_dir():
+        elif path.name.endswith(MAYBE_NOT_INVENTORY) and is_dir(root):
             _parse_ini_or_skip(path, read, draft)
         else:
             parse_ini(path, read[0], read[1], draft)
@@ -140,6 +149,7 @@ def _inventory_files(root: Path, problems: list[Problem]) -> list[Path]:
     found: list[Path] = []
     seen: set[Path] = set()
     walked = [0]
+    before = len(problems)
 
     def walk(folder: Path) -> None:
         real = folder.resolve()
@@ -162,6 +172,7 @@ def _inventory_files(root: Path, problems: list[Problem]) -> list[Path]:
         problems.append(Problem(str(error.folder), None, "", f"cannot read this inventory folder ({error.reason})"))
         return []
     except _TooBig:
+        del problems[before:]   # what the walk met on a whole disk (`chmod +x` for every *.py) hides the cause
         problems.append(Problem(str(root), None, "", f"more than {MAX_DIR_ENTRIES} entries under this inventory "
                                 "directory: it does not look like an inventory; point -i / the fleet file's "
                                 "`inventory:` at the folder that holds hosts.yml (or the file itself)"))
@@ -182,7 +193,7 @@ class _TooBig(Exception):
 def _sort_entry(entry: Path, walk: Callable[[Path], None], found: list[Path], problems: list[Problem]) -> None:
     if entry.name.startswith(".") or entry.name in ("group_vars", "host_vars"):
         return
-    if entry.is_dir():
+    if is_dir(entry):
         walk(entry)
     elif entry.name.endswith(SKIPPED_EXTS):
         return

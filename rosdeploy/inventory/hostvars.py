@@ -143,6 +143,8 @@ def to_int(value: Any, what: str) -> int:
     if isinstance(value, int) and not isinstance(value, bool):
         return value
     if isinstance(value, str) and _ASCII_INT.fullmatch(value.strip()):
+        if len(value.strip()) > 100:   # int() of 4,300 digits raises; no setting takes 100
+            raise BadValue(f"must be {what}, got a number of {len(value.strip())} digits")
         return int(value)
     raise BadValue(f"must be {what}, got {value!r}")
 

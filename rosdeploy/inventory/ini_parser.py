@@ -13,7 +13,7 @@ from rosdeploy.errors import Problem
 from rosdeploy.inventory.draft import Draft, Origin, make_layer, split_where
 from rosdeploy.inventory.known import GROUP_KEYS, did_you_mean_hint
 from rosdeploy.inventory.ranges import add_hosts, entries_left, valid_name
-from rosdeploy.yamlsrc import MAX_NODES, Doc, KeyPath
+from rosdeploy.yamlsrc import MAX_INT_BITS, MAX_NODES, Doc, KeyPath
 
 
 _SECTION = re.compile(r"\[(?P<name>[^:\]\s]+)(?::(?P<kind>\w+))?\]\s*(?:[#;].*)?")
@@ -180,20 +180,27 @@ def _ini_value(text: str) -> Any:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SyntaxWarning)
-            value = ast.literal_eval(text)
+            return _plain(ast.literal_eval(text), text)
     except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
         return text
-    return _plain(value, text)
 
 
-def _plain(value: Any, text: str) -> Any:
+def _plain(value: Any, text: str | None) -> Any:
+    """`value` in variable types; `text` (or the item's str()) for what is none."""
     if isinstance(value, (tuple, set, list)):
-        return [_plain(item, str(item)) for item in value]
+        return [_plain(item, None) for item in value]
     if isinstance(value, dict):
-        return {k: _plain(v, str(v)) for k, v in value.items()}
-    if value is None or isinstance(value, (str, int, float, bool)):
+        return {_writable(k): _plain(v, None) for k, v in value.items()}
+    if _writable(value) is None or isinstance(value, (str, int, float, bool)):
         return value
-    return text  # bytes, complex, Ellipsis: not variable types, keep what was written
+    return str(value) if text is None else text  # bytes, complex, Ellipsis: keep what was written
+
+
+def _writable(value: Any) -> Any:
+    # `0x` + 4,000 hex digits: no message or JSON could show it (str() raises ValueError)
+    if isinstance(value, int) and value.bit_length() > MAX_INT_BITS:
+        raise ValueError("integer too large to write")
+    return value
 
 
 def check_undeclared(draft: Draft) -> None:

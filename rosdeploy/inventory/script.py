@@ -32,9 +32,9 @@ POLL = 0.05      # seconds between looks at a running script's time and output s
 def is_script(path: Path) -> bool:
     """Executable and starting with `#!`. (Ansible also tries executable files without one and falls
     back to YAML/INI when that fails: files marked executable by a checkout are common.)"""
-    if not (path.is_file() and os.access(path, os.X_OK)):
-        return False
-    try:
+    try:   # is_file() raises on EACCES (Python 3.11): a file under /proc, or another user's
+        if not (path.is_file() and os.access(path, os.X_OK)):
+            return False
         with path.open("rb") as handle:
             return handle.read(2) == b"#!"
     except OSError:

@@ -7,18 +7,20 @@ from pathlib import Path
 
 from rosdeploy import suggest
 from rosdeploy.errors import Problem
-from rosdeploy.inventory.discovery import Reader
+from rosdeploy.inventory.discovery import MAX_DIR_ENTRIES, Reader, is_dir
 from rosdeploy.inventory.draft import Draft, Layer, make_layer
 from rosdeploy.inventory.known import SKIPPED_EXTS, VARS_EXTS, YAML_EXTS
 
 
 def attach_vars_files(base: Path, reader: Reader, draft: Draft) -> None:
     for kind, entities in (("group_vars", draft.groups), ("host_vars", draft.hosts)):
-        for name, files in _vars_files(base / kind, draft).items():
+        for name, chosen in _vars_files(base / kind, draft).items():
             target = entities.get(name)
+            # a NAME/ folder is walked only for a known name: `group_vars -> /` walks no disk
+            files = _vars_dir(chosen, draft) if target is not None and is_dir(chosen) else [chosen]
             if target is None:
-                if kind == "group_vars" and files:
-                    _unknown_group_vars(files[0], name, list(entities), draft)
+                if kind == "group_vars" and not _empty_dir(chosen):
+                    _unknown_group_vars(chosen, name, list(entities), draft)
                 continue
             for path in files:
                 layer = _read_vars_file(path, reader, draft)
@@ -26,49 +28,92 @@ def attach_vars_files(base: Path, reader: Reader, draft: Draft) -> None:
                     target.files.append(layer)
 
 
-def _vars_files(folder: Path, draft: Draft) -> dict[str, list[Path]]:
-    """Entity name → its vars files in load order, chosen as Ansible's find_vars_files does."""
-    if not folder.is_dir():
+def _empty_dir(path: Path) -> bool:
+    try:
+        return is_dir(path) and next(path.iterdir(), None) is None
+    except OSError:
+        return False
+
+
+def _vars_files(folder: Path, draft: Draft) -> dict[str, Path]:
+    """Entity name → its vars file or folder, chosen as Ansible's find_vars_files does."""
+    if not is_dir(folder):
         return {}
     candidates: dict[str, list[Path]] = {}
-    for entry in sorted(folder.iterdir()):
+    for entry in _listing(folder, draft):
         if entry.name.startswith(".") or entry.name.endswith("~"):
             continue
         # Not is_file(): a fifo, a device or a dangling symlink named NAME.yml is still NAME's vars
         # file, and reading it gives the error ("not a regular file") rather than losing its vars.
-        if entry.suffix in YAML_EXTS and not entry.is_dir():
+        if entry.suffix in YAML_EXTS and not is_dir(entry):
             candidates.setdefault(entry.stem, []).append(entry)
         elif not entry.name.endswith(SKIPPED_EXTS):   # NAME/ or NAME: host names may hold dots
             candidates.setdefault(entry.name, []).append(entry)
-    out: dict[str, list[Path]] = {}
+    out: dict[str, Path] = {}
     for name, found in candidates.items():
         # Ansible takes the first of NAME (file or directory), NAME.yml, NAME.yaml, NAME.json.
         found.sort(key=lambda p: VARS_EXTS.index(p.suffix) if p.name != name else -1)
-        chosen = f"{found[0]}{'/' if found[0].is_dir() else ''}"
+        chosen = f"{found[0]}{'/' if is_dir(found[0]) else ''}"
         for ignored in found[1:]:
             draft.warnings.append(Problem(str(ignored), None, "", f"ignored: {chosen} already holds the vars of "
                                           f"{name!r}, and Ansible reads only the first of NAME, NAME.yml, "
                                           "NAME.yaml, NAME.json; merge them", severity="warning"))
-        out[name] = _dir_files(found[0], draft, set()) if found[0].is_dir() else [found[0]]
+        out[name] = found[0]
     return out
 
 
-def _dir_files(folder: Path, draft: Draft, seen: set[str]) -> list[Path]:
-    real = os.path.realpath(folder)
+def _listing(folder: Path, draft: Draft) -> list[Path]:
+    try:
+        return sorted(folder.iterdir())
+    except OSError as error:
+        draft.problems.append(Problem(str(folder), None, "", f"cannot read this vars folder "
+                                      f"({error.strerror or error}): fix its permissions or remove it"))
+        return []
+
+
+class _TooMany(Exception):
+    pass
+
+
+def _vars_dir(folder: Path, draft: Draft) -> list[Path]:
+    """The files of a NAME/ folder, bounded: a link in it to `/` or a home would walk a whole disk
+    and read every *.yml there."""
+    try:
+        return _dir_files(folder, draft, set(), [0])
+    except _TooMany:
+        draft.problems.append(Problem(str(folder), None, "", f"more than {MAX_DIR_ENTRIES} entries under "
+                                      "this vars folder (a symlink in it to / or to a home?): it does not look "
+                                      "like a folder of vars files; fix the link or move the files"))
+        return []
+
+
+def _dir_files(folder: Path, draft: Draft, seen: set[str], walked: list[int]) -> list[Path]:
+    real = _real(folder)
     if real in seen:   # a symlink back up the tree: Ansible would follow it ~40 levels deep
         draft.warnings.append(Problem(str(folder), None, "", f"symlink loop (back to {real}): its files are "
                                       "read once; remove the link", severity="warning"))
         return []
     seen = seen | {real}
     found: list[Path] = []
-    for entry in sorted(folder.iterdir()):
+    entries = _listing(folder, draft)
+    walked[0] += len(entries)
+    if walked[0] > MAX_DIR_ENTRIES:
+        raise _TooMany
+    for entry in entries:
         if entry.name.startswith(".") or entry.name.endswith("~"):
             continue
-        if entry.is_dir() and not entry.suffix:
-            found.extend(_dir_files(entry, draft, seen))
-        elif entry.suffix in VARS_EXTS and not entry.is_dir():   # not is_file(): see _vars_files
+        if is_dir(entry) and not entry.suffix:
+            found.extend(_dir_files(entry, draft, seen, walked))
+        elif entry.suffix in VARS_EXTS and not is_dir(entry):   # not is_file(): see _vars_files
             found.append(entry)
-    return list({os.path.realpath(path): path for path in reversed(found)}.values())[::-1]   # each file once
+    return list({_real(path): path for path in reversed(found)}.values())[::-1]   # each file once
+
+
+def _real(path: Path) -> str:
+    try:
+        return os.path.realpath(path)
+    except OSError:   # a link it may not read (EACCES under /proc): the path stands for itself
+        return str(path)
 
 
 def _read_vars_file(path: Path, reader: Reader, draft: Draft) -> Layer | None:

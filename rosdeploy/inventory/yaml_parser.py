@@ -50,9 +50,10 @@ def _string_key(key: Any, origin: Origin, draft: Draft, what: str) -> bool:
     return False
 
 
-def _yaml_group(origin: Origin, name: str, entry: Any, draft: Draft) -> None:
+def _yaml_group(origin: Origin, name: str, entry: Any, draft: Draft) -> bool:
+    """Reads one group; False when its name is refused (so no parent may list it)."""
     if not valid_name(name, origin, draft, "group"):
-        return
+        return False
     draft.group(name, origin.where)
     entry = _as_mapping(origin, entry, f"group {name!r} must be a mapping with hosts:, vars: and/or "
                                        "children:", draft)
@@ -67,6 +68,7 @@ def _yaml_group(origin: Origin, name: str, entry: Any, draft: Draft) -> None:
         else:
             draft.problems.append(sub.problem((), f"unknown key in group {name!r}: a group holds only "
                                                   f"hosts:, vars: and children:{_misplaced_hint(key)}"))
+    return True
 
 
 def _misplaced_hint(key: Any) -> str:
@@ -112,7 +114,8 @@ def _yaml_children(origin: Origin, group: str, children: Any, draft: Draft) -> N
         child_origin = origin.child(child)
         if not _string_key(child, child_origin, draft, "group"):
             continue
-        draft.groups[group].children.setdefault(child, child_origin)
-        _yaml_group(child_origin, child, entry, draft)
+        # listed only once its name is accepted: the graph looks every child up (`"a\nb":` crashed it)
+        if _yaml_group(child_origin, child, entry, draft):
+            draft.groups[group].children.setdefault(child, child_origin)
 
 
