@@ -95,9 +95,7 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
 
     project, hosts = _load(args, out)
     root = Path(args.out)
-    if os.path.realpath(root) == "/":   # robot `etc` would merge its logrotate.conf & co into /etc
-        raise InputError([Problem(str(root), None, "--out", "the filesystem root: render writes a folder "
-                                  "per robot into --out; give a folder of its own, e.g. /tmp/release")])
+    _check_out(root, Path(project.spec.inventory))
     releases, warnings = _render_to(root, lambda sink: deployable(project, hosts, sink))   # or exit 2
     for warning in warnings:
         out.warn(f"{warning.severity}: {warning}")
@@ -110,6 +108,22 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
               [(r.host, r.release_id, r.digest[:16], len(r.files)) for r in releases.values()])
     out.line(f"wrote {len(releases)} robot(s) to {root}/<robot>/")
     return EXIT_OK
+
+
+def _check_out(root: Path, inventory: Path) -> None:
+    """--out may not be / (robot `etc` would merge its logrotate.conf & co into /etc), nor a
+    folder the inventory is read from (the next run would read the robots' files as inventory)."""
+    out = os.path.realpath(root)
+    if out == "/":
+        raise InputError([Problem(str(root), None, "--out", "the filesystem root: render writes a folder "
+                                  "per robot into --out; give a folder of its own, e.g. /tmp/release")])
+    base = os.path.realpath(inventory if inventory.is_dir() else inventory.parent)
+    read = [base] if inventory.is_dir() else [os.path.join(base, "group_vars"), os.path.join(base, "host_vars")]
+    inside = next((folder for folder in read if os.path.commonpath([out, folder]) == folder), None)
+    if inside is not None:
+        raise InputError([Problem(str(root), None, "--out", f"inside {inside}, which the inventory is read from: "
+                                  "the next run would read the rendered files as inventory; give a folder "
+                                  "outside it, e.g. /tmp/release")])
 
 
 def _render_to(root: Path, render: Callable[[Any], tuple[dict[str, RenderedRelease], list[Problem]]],

@@ -155,3 +155,22 @@ def test_render_refuses_the_filesystem_root(capsys: pytest.CaptureFixture, lab: 
                  str(lab / "inventory" / ".vault-password"), "--out", out])
     text = capsys.readouterr().err
     assert code == 2 and "--out: the filesystem root" in text and "Traceback" not in text, text
+
+
+@pytest.mark.parametrize("where", ["inventory", "inventory/out", "inventory/host_vars"])
+def test_render_refuses_a_folder_the_inventory_is_read_from(capsys: pytest.CaptureFixture, lab: Path,
+                                                           where: str) -> None:
+    # robot folders there (compose.yml, .env) would be read as inventory sources by the next run
+    before = sorted(str(p) for p in (lab / "inventory").rglob("*"))
+    code = main(["render", str(lab / "fleet.yml"), "--vault-password-file",
+                 str(lab / "inventory" / ".vault-password"), "--out", str(lab / where)])
+    text = capsys.readouterr().err
+    assert code == 2 and "which the inventory is read from" in text and "Traceback" not in text, text
+    assert sorted(str(p) for p in (lab / "inventory").rglob("*")) == before
+
+
+def test_render_beside_the_inventory_still_writes(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    code = main(["render", str(lab / "fleet.yml"), "--vault-password-file",
+                 str(lab / "inventory" / ".vault-password"), "--out", str(lab / "out")])
+    assert code == 0, capsys.readouterr().err
+    assert any((lab / "out").iterdir())
