@@ -326,7 +326,6 @@ _VIEWS = (ServiceView, HealthView, UdevView, Host, FleetSpec)
 _BUILTIN = _builtin_environment()
 
 
-
 class Renderer:
     """Compiles the templates of one FleetSpec once; `render(host)` is then cheap and pure."""
 
