@@ -160,9 +160,7 @@ def _inventory_files(root: Path, problems: list[Problem]) -> list[Path]:
             entries = sorted(folder.iterdir())
         except OSError as error:
             raise _Unreadable(folder, error.strerror or str(error)) from None
-        walked[0] += len(entries)
-        if walked[0] > MAX_DIR_ENTRIES:
-            raise _TooBig(root)
+        tally(walked, entries)
         for entry in entries:
             _sort_entry(entry, walk, found, problems)
 
@@ -171,7 +169,7 @@ def _inventory_files(root: Path, problems: list[Problem]) -> list[Path]:
     except _Unreadable as error:
         problems.append(Problem(str(error.folder), None, "", f"cannot read this inventory folder ({error.reason})"))
         return []
-    except _TooBig:
+    except TooBig:
         del problems[before:]   # what the walk met on a whole disk (`chmod +x` for every *.py) hides the cause
         problems.append(Problem(str(root), None, "", f"more than {MAX_DIR_ENTRIES} entries under this inventory "
                                 "directory: it does not look like an inventory; point -i / the fleet file's "
@@ -186,8 +184,15 @@ class _Unreadable(Exception):
         self.folder, self.reason = folder, reason
 
 
-class _TooBig(Exception):
-    pass
+class TooBig(Exception):
+    """More than MAX_DIR_ENTRIES entries met by one walk."""
+
+
+def tally(walked: list[int], entries: list[Path]) -> None:
+    """Count a folder's entries into one walk's total: TooBig past MAX_DIR_ENTRIES."""
+    walked[0] += len(entries)
+    if walked[0] > MAX_DIR_ENTRIES:
+        raise TooBig
 
 
 def _sort_entry(entry: Path, walk: Callable[[Path], None], found: list[Path], problems: list[Problem]) -> None:

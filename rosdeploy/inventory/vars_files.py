@@ -7,7 +7,8 @@ from pathlib import Path
 
 from rosdeploy import suggest
 from rosdeploy.errors import Problem
-from rosdeploy.inventory.discovery import MAX_DIR_ENTRIES, Reader, is_dir
+from rosdeploy.inventory import discovery
+from rosdeploy.inventory.discovery import Reader, TooBig, is_dir, tally
 from rosdeploy.inventory.draft import Draft, Layer, make_layer
 from rosdeploy.inventory.known import SKIPPED_EXTS, VARS_EXTS, YAML_EXTS
 
@@ -71,17 +72,13 @@ def _listing(folder: Path, draft: Draft) -> list[Path]:
         return []
 
 
-class _TooMany(Exception):
-    pass
-
-
 def _vars_dir(folder: Path, draft: Draft) -> list[Path]:
     """The files of a NAME/ folder, bounded: a link in it to `/` or a home would walk a whole disk
     and read every *.yml there."""
     try:
         return _dir_files(folder, draft, set(), [0])
-    except _TooMany:
-        draft.problems.append(Problem(str(folder), None, "", f"more than {MAX_DIR_ENTRIES} entries under "
+    except TooBig:
+        draft.problems.append(Problem(str(folder), None, "", f"more than {discovery.MAX_DIR_ENTRIES} entries under "
                                       "this vars folder (a symlink in it to / or to a home?): it does not look "
                                       "like a folder of vars files; fix the link or move the files"))
         return []
@@ -96,9 +93,7 @@ def _dir_files(folder: Path, draft: Draft, seen: set[str], walked: list[int]) ->
     seen = seen | {real}
     found: list[Path] = []
     entries = _listing(folder, draft)
-    walked[0] += len(entries)
-    if walked[0] > MAX_DIR_ENTRIES:
-        raise _TooMany
+    tally(walked, entries)
     for entry in entries:
         if entry.name.startswith(".") or entry.name.endswith("~"):
             continue

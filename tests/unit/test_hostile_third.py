@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 from rosdeploy.cli import main, offline
-from rosdeploy.inventory import discovery, vars_files
+from rosdeploy.inventory import discovery
 from test_hostile import cli, edit, lab, refused_everywhere
 
 __all__ = ["lab"]   # the fixture: tests/unit/data/fleet copied, its vault password in place
@@ -78,14 +78,14 @@ def test_an_inventory_folder_too_big_is_one_message(capsys: pytest.CaptureFixtur
 def test_a_link_to_a_big_tree_in_a_vars_folder_is_refused(capsys: pytest.CaptureFixture, lab: Path,
                                                           monkeypatch: pytest.MonkeyPatch) -> None:
     # group_vars/all/x -> / read every *.yml on the disk (and crashed on EACCES under /proc).
-    monkeypatch.setattr(vars_files, "MAX_DIR_ENTRIES", 50)
+    monkeypatch.setattr(discovery, "MAX_DIR_ENTRIES", 50)   # one bound for every walk
     (lab / "inventory" / "group_vars" / "all" / "disk").symlink_to(tree(lab / "big", 60))
     refused(capsys, lab, "group_vars/all: more than 50 entries under this vars folder")
 
 
 def test_a_vars_folder_of_no_known_group_is_not_walked(capsys: pytest.CaptureFixture, lab: Path,
                                                        monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(vars_files, "MAX_DIR_ENTRIES", 50)
+    monkeypatch.setattr(discovery, "MAX_DIR_ENTRIES", 50)   # one bound for every walk
     (lab / "inventory" / "group_vars" / "zzz_other_tool").symlink_to(tree(lab / "big", 60))
     code, text = cli(capsys, lab, "validate")
     assert code == 0, text
