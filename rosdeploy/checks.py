@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 from rosdeploy import yamlsrc
-from rosdeploy.errors import InputError, Problem
+from rosdeploy.errors import InputError, Problem, shown
 from rosdeploy.fleet import problem_at, size_bytes
 from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
 
@@ -318,9 +318,9 @@ def _domain_duplicates(ctx: Context) -> Iterator[Problem]:
         first = seen.setdefault((host.network, host.ros_domain_id), host)
         if first is not host:
             yield host_problem(host, "ros_domain_id", (
-                f"{host.name!r} and {first.name!r} ({_set_at(first, 'ros_domain_id')}) both use ros_domain_id "
-                f"{host.ros_domain_id} "
-                f"on network {host.network!r}: their DDS traffic would mix; give {host.name!r} an unused ID (0-101)"))
+                f"{shown(host.name)} and {shown(first.name)} ({_set_at(first, 'ros_domain_id')}) both use "
+                f"ros_domain_id {host.ros_domain_id} on network {shown(host.network)}: their DDS traffic would mix; "
+                f"give {shown(host.name)} an unused ID (0-101)"))
 
 
 @rule("domain-id-missing", "error", "host", "Every robot declares its ros_domain_id in the inventory.",
@@ -328,7 +328,7 @@ def _domain_duplicates(ctx: Context) -> Iterator[Problem]:
 def _domain_missing(ctx: Context, host: Host) -> Iterator[Problem]:
     if "ros_domain_id" not in host.vars:
         yield host_problem(host, "ros_domain_id", (
-            f"{host.name!r} declares no ros_domain_id: without one it would join domain 0 with every other "
+            f"{shown(host.name)} declares no ros_domain_id: without one it would join domain 0 with every other "
             "such robot; add `ros_domain_id: N` (0-101, unique on its network) to its host vars"))
 
 
@@ -522,7 +522,7 @@ def _compose_ref_undefined(ctx: Context, t: Target, name: str, svc: dict) -> Fin
             source = entry.get("source") if isinstance(entry, dict) else entry
             if not isinstance(source, str) or source not in defined:
                 yield ("services", name, "compose", kind, i), (
-                    f"service {name} of {ROBOTS} uses {kind[:-1]} {source!r}, which the compose.yml does not "
+                    f"service {name} of {ROBOTS} uses {kind[:-1]} {shown(source)}, which the compose.yml does not "
                     f"define at the top level (compose would refuse the file): use {instead} instead")
 
 

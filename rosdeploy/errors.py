@@ -16,6 +16,11 @@ EXIT_ABORTED = 4       # a rollout stopped on max_fail (fleet-level rollback may
 EXIT_DECLINED = 5      # the operator answered no at the confirmation: nothing was done
 EXIT_INTERRUPTED = 130
 
+# Characters of a user value quoted in a message: enough to recognise it beside the file:line or
+# key the message names. Values were quoted whole, so a 5,000-character `window.tz` or `--limit`
+# made a message (and a --json document) of several KB.
+SHOWN_CHARS = 100
+
 
 @dataclass(frozen=True)
 class Problem:
@@ -32,6 +37,17 @@ class Problem:
         where = f"{self.file}:{self.line}" if self.line else self.file
         text = f"{self.key}: {self.message}" if self.key else self.message
         return f"{where}: {text}" if where else text   # no file (a registry, a flag): no empty prefix
+
+
+def shown(value: object, limit: int = SHOWN_CHARS) -> str:
+    """repr() of a user value for a message; past `limit` characters its head, `...` and its length."""
+    if isinstance(value, str):
+        return repr(value) if len(value) <= limit else f"{value[:limit]!r}... ({len(value)} characters)"
+    try:
+        text = repr(value)
+    except ValueError:      # an int past Python's 4,300-digit str() bound
+        return "a number too long to show"
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 class RosdeployError(Exception):

@@ -22,7 +22,7 @@ import jinja2
 import yaml
 
 from rosdeploy import restarts
-from rosdeploy.errors import Problem
+from rosdeploy.errors import Problem, shown
 from rosdeploy.inventory.templating import secret_read, secret_reads
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RobotFile
 from rosdeploy.sandbox import Layered, render_value, value_template
@@ -82,15 +82,15 @@ class FileRenderer:
 
     def _problem(self, host: Host, entry: RobotFile, message: str) -> Problem:
         doc = Doc(self.spec.path, None, self.spec.lines)
-        return doc.problem(("files", entry.name, entry.kind), f"robot {host.name!r}: {message}")
+        return doc.problem(("files", entry.name, entry.kind), f"robot {shown(host.name)}: {message}")
 
     def _content(self, entry: RobotFile, host: Host, layers: tuple[Mapping[str, Any], ...],
                  problems: list[Problem]) -> str | None:
         scope = Layered(*layers)
         if entry.kind == "var":
             if entry.source not in scope:
-                problems.append(self._problem(host, entry, f"inventory variable {entry.source!r} is not defined for "
-                                                           "this robot: set it in its host_vars or group_vars"))
+                problems.append(self._problem(host, entry, f"inventory variable {shown(entry.source)} is not defined "
+                                                           "for this robot: set it in its host_vars or group_vars"))
                 return None
             value = scope[entry.source]
             if isinstance(value, jinja2.Undefined):   # its template failed: reading it says why
@@ -100,7 +100,7 @@ class FileRenderer:
                     problems.append(self._problem(host, entry, exc.message or str(exc)))
                     return None
                 # An Undefined that reads as "" (not strict) must not become an empty file, nor reach yaml.
-                problems.append(self._problem(host, entry, f"inventory variable {entry.source!r} is undefined for "
+                problems.append(self._problem(host, entry, f"inventory variable {shown(entry.source)} is undefined for "
                                                            "this robot: check its template in host_vars or group_vars"))
                 return None
             return value if isinstance(value, str) else yaml.safe_dump(value, sort_keys=True, default_flow_style=False)
@@ -127,7 +127,7 @@ class FileRenderer:
     def _checked(self, rel: str, host: Host, entry: RobotFile, problems: list[Problem]) -> Path | None:
         """The source file, only if it is inside the fleet file's folder (links resolved)."""
         if not rel or rel.startswith(("/", "~")) or ".." in rel.split("/"):
-            problems.append(self._problem(host, entry, f"{rel!r} is not a path inside the fleet repo "
+            problems.append(self._problem(host, entry, f"{shown(rel)} is not a path inside the fleet repo "
                                                        "(relative, without `..`)"))
             return None
         # Before any filesystem call, which raises on these: resolve() on a NUL (ValueError), stat() on
@@ -137,8 +137,8 @@ class FileRenderer:
                     else "has a folder or file name over 255 bytes" if max(map(len, full.split(b"/"))) > 255
                     else "")
         if unusable:
-            shown = repr(rel) if len(rel) <= 60 else repr(rel[:57]) + "..."
-            problems.append(self._problem(host, entry, f"the path renders to {shown}, which {unusable}: fix "
+            head = repr(rel) if len(rel) <= 60 else repr(rel[:57]) + "..."
+            problems.append(self._problem(host, entry, f"the path renders to {head}, which {unusable}: fix "
                                                        "the template or the inventory variables it uses"))
             return None
         try:

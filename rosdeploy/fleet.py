@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from rosdeploy import ready as readiness, rotation, schema_quick, window as windows, yamlsrc
-from rosdeploy.errors import FleetSpecError, InputError, Problem
+from rosdeploy.errors import FleetSpecError, InputError, Problem, shown
 from rosdeploy.images.refs import DIGEST_RE, parse_rate
 from rosdeploy.model import (FleetSpec, HealthCheck, HealthPolicy, ImagePolicy, RobotFile, RollbackPolicy,
                              RolloutPolicy,
@@ -45,6 +45,11 @@ ABSOLUTE_PATH_RE = re.compile(r"(/[A-Za-z0-9_.@+-]+)+/?")
 # mount of the user's may not land on or under them.
 MANAGED_MOUNTS = ("/fastdds.xml", "/cyclonedds.xml", "/dev/shm", "/ros_log")
 REMOTE_PATH_RE = re.compile(r"(~|~/[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*|(/[A-Za-z0-9_.-]+)+)/?")
+# A deploy root holds releases/<version>-<digest>/<file>, the lock and the history: a quarter of
+# Linux's PATH_MAX (4096) leaves room for what goes below it, and no real folder comes near it.
+# NAME_MAX (255) bounds each name in it (REMOTE_PATH_RE is ASCII: characters are bytes).
+MAX_REMOTE_ROOT = 1024
+MAX_PATH_NAME = 255
 _DOMAIN = (r"(?:localhost|[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?)*)"
            r"(?::[0-9]{1,5})?")
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
@@ -142,7 +147,7 @@ def _kind(value: Any) -> str:
     if isinstance(value, (int, float)):
         return f"a number ({value})"
     if isinstance(value, str):
-        return f"a string ({value!r})"
+        return f"a string ({shown(value)})"
     if isinstance(value, (datetime.date, datetime.datetime)):    # YAML reads 2024-01-01 as a date
         return f"a date ({value.isoformat()}; quote it for text)"
     if isinstance(value, bytes):
@@ -265,6 +270,8 @@ class Reader:
         """A path on this machine: ~ and $VARS expanded, relative to the fleet file's folder."""
         if not isinstance(value, str) or not value.strip():
             raise Invalid(f"must be a path (a string); got {_kind(value)}")
+        if "\0" in value:       # no file name holds one: os.stat() would raise ValueError
+            raise Invalid("holds a NUL byte, which no path can: remove it")
         if _SECRET_ENV_REF.search(value):
             raise Invalid("a path may not use the vault password variables: they are secrets")
         expanded = os.path.expandvars(value)
@@ -334,7 +341,7 @@ def _string(pattern: re.Pattern | None = None, what: str = "") -> Convert:
             hint = f'; quote it: "{value}"' if isinstance(value, (int, float)) and not isinstance(value, bool) else ""
             raise Invalid(f"must be a string; got {_kind(value)}{hint}")
         if pattern is not None and not pattern.fullmatch(value):
-            raise Invalid(f"{value!r} is not a valid {what}: use {_pattern_hint(pattern)}")
+            raise Invalid(f"{shown(value)} is not a valid {what}: use {_pattern_hint(pattern)}")
         return value
     return convert
 
@@ -416,8 +423,8 @@ def _size(r: Reader, kp: KeyPath, value: Any) -> Any:
     except ValueError:
         too_big = True
     if too_big:
-        shown = value if len(value) <= 20 else value[:17] + "..."
-        raise Invalid(f"{shown!r} is more than {MAX_SIZE_BYTES >> 30}g: no robot has that much memory "
+        head = value if len(value) <= 20 else value[:17] + "..."
+        raise Invalid(f"{head!r} is more than {MAX_SIZE_BYTES >> 30}g: no robot has that much memory "
                       "or log space; give a size like 512m or 1g")
     return value.strip().lower()
 
@@ -439,7 +446,7 @@ def _listof(item: Convert, what: str) -> Convert:
             r.take(item, kp + (i,), v, out, i)
         for i, v in enumerate(value):
             if isinstance(v, (str, int)) and value.index(v) < i:
-                r.error(kp + (i,), f"{v!r} is listed twice; keep one")
+                r.error(kp + (i,), f"{shown(v)} is listed twice; keep one")
         if len(out) < len(value):
             raise Invalid()   # its items' problems are reported; Reader.items reads the others
         return tuple(out[i] for i in range(len(value)))
@@ -451,10 +458,10 @@ def _listof(item: Convert, what: str) -> Convert:
 def _tag(r: Reader, kp: KeyPath, value: Any) -> Any:
     value = _string()(r, kp, value)
     if not value.strip() or value.strip().lower() == "latest":
-        raise Invalid(f"{value!r} is not a release version: every deploy needs an explicit tag that "
+        raise Invalid(f"{shown(value)} is not a release version: every deploy needs an explicit tag that "
                       'can be rolled back to, e.g. "1.4.2" or "1.4.2-3f9a2c1" (version and commit)')
     if not TAG_RE.fullmatch(value):
-        raise Invalid(f"{value!r} is not a valid image tag: use letters, digits, `_`, `.` and `-` "
+        raise Invalid(f"{shown(value)} is not a valid image tag: use letters, digits, `_`, `.` and `-` "
                       "(at most 128, not starting with `.` or `-`)")
     return value
 
@@ -462,11 +469,11 @@ def _tag(r: Reader, kp: KeyPath, value: Any) -> Any:
 def _registry(r: Reader, kp: KeyPath, value: Any) -> Any:
     value = _string()(r, kp, value)
     if not REGISTRY_RE.fullmatch(value):
-        raise Invalid(f"{value!r} is not a registry: write host[:port][/path], e.g. registry.local:5000, "
+        raise Invalid(f"{shown(value)} is not a registry: write host[:port][/path], e.g. registry.local:5000, "
                       "without a scheme (no https://)")
     port = re.match(r"[^/]*:([0-9]+)", value)
     if port and not 0 < int(port[1]) < 65536:
-        raise Invalid(f"{value!r}: port {port[1]} is not a TCP port (1-65535)")
+        raise Invalid(f"{shown(value)}: port {port[1]} is not a TCP port (1-65535)")
     return value
 
 
@@ -476,7 +483,7 @@ def _image(r: Reader, kp: KeyPath, value: Any) -> Any:
     if "@" in value:
         value, _, digest = value.partition("@")
         if not DIGEST_RE.fullmatch(digest):
-            raise Invalid(f"{digest!r} is not an image digest: write repo@sha256:<64 hex digits>, or "
+            raise Invalid(f"{shown(digest)} is not an image digest: write repo@sha256:<64 hex digits>, or "
                           "give the repository only and pin the version with `tag:`")
         return f"{_image(r, kp, value)}@{digest}"
     if len(value) > MAX_IMAGE_NAME:
@@ -490,7 +497,7 @@ def _image(r: Reader, kp: KeyPath, value: Any) -> Any:
     if _has_registry_host(value) and REGISTRY_RE.fullmatch(host) and REPOSITORY_RE.fullmatch(rest):
         return value
     if not REPOSITORY_RE.fullmatch(value):
-        raise Invalid(f"{value!r} is not a valid image repository: use lower-case path components "
+        raise Invalid(f"{shown(value)} is not a valid image repository: use lower-case path components "
                       "(letters, digits, `.`, `_`, `-`) separated by `/`, e.g. acme/amr-driver")
     return value
 
@@ -499,13 +506,13 @@ def _rate(r: Reader, kp: KeyPath, value: Any) -> Any:
     try:
         return parse_rate(value)
     except ValueError:
-        raise Invalid(f"{value!r} is not a rate: write bytes per second, e.g. 2MB/s or 500kB/s") from None
+        raise Invalid(f"{shown(value)} is not a rate: write bytes per second, e.g. 2MB/s or 500kB/s") from None
 
 
 def _controller_registry(r: Reader, kp: KeyPath, value: Any) -> Any:
     value = _string()(r, kp, value)
     if not REGISTRY_RE.fullmatch(value.split("://", 1)[-1]):
-        raise Invalid(f"{value!r} is not a registry address: write host[:port], optionally after "
+        raise Invalid(f"{shown(value)} is not a registry address: write host[:port], optionally after "
                       "http:// or https://, e.g. http://127.0.0.1:5000")
     return value
 
@@ -618,7 +625,7 @@ def _mount(r: Reader, kp: KeyPath, value: Any) -> Any:
     parts = value.split(":")
     mode = parts.pop() if len(parts) == 3 and parts[2] in ("ro", "rw") else "rw"
     if len(parts) != 2 or not all(ABSOLUTE_PATH_RE.fullmatch(p) and ".." not in p.split("/") for p in parts):
-        raise Invalid(f"{value!r} is not a bind mount: use /path/on/robot:/path/in/container, optionally "
+        raise Invalid(f"{shown(value)} is not a bind mount: use /path/on/robot:/path/in/container, optionally "
                       f"followed by :ro or :rw; both paths absolute, letters, digits and ._@+- only")
     source, target = (normal_path(p) for p in parts)   # `/dev/./shm` is /dev/shm, to Docker and to checks
     taken = managed_mount(target)
@@ -679,7 +686,7 @@ def _memory(r: Reader, kp: KeyPath, value: Any) -> Any:
     """A memory limit: a size Docker accepts (`0m` would be refused on the robot, mid-deploy)."""
     value = _size(r, kp, value)
     if size_bytes(value) < DOCKER_MIN_MEMORY:
-        raise Invalid(f"{value!r} is below Docker's minimum memory limit of 6m: give the service "
+        raise Invalid(f"{shown(value)} is below Docker's minimum memory limit of 6m: give the service "
                       "what it needs, e.g. 256m")
     return value   # the upper bound is _size's
 
@@ -697,7 +704,7 @@ def _log_size(r: Reader, kp: KeyPath, value: Any) -> Any:
     """json-file's max-size: above 0 (`0m` makes dockerd refuse to create the container)."""
     value = _size(r, kp, value)
     if not 0 < size_bytes(value) <= MAX_LIMIT_BYTES:
-        raise Invalid(f"{value!r}: a log file's size must be above 0 and a 64-bit byte count, e.g. 10m")
+        raise Invalid(f"{shown(value)}: a log file's size must be above 0 and a 64-bit byte count, e.g. 10m")
     return value
 
 
@@ -727,7 +734,7 @@ def _rotate_every(r: Reader, kp: KeyPath, value: Any) -> Any:
         return None
     seconds = _duration(r, kp, value)
     if rotation.cron_schedule(seconds) is None:
-        raise Invalid(f"{value!r} is not a period cron can keep (it runs at most once a minute, on the "
+        raise Invalid(f"{shown(value)} is not a period cron can keep (it runs at most once a minute, on the "
                       f"clock): use one of {rotation.PERIODS}, or off")
     return seconds
 
@@ -736,12 +743,30 @@ def _deploy_root(r: Reader, kp: KeyPath, value: Any) -> Any:
     """deploy_root: the remote-path pattern (no shell metacharacters), and no `..` anywhere."""
     value = _string(REMOTE_PATH_RE, "path on the robot (absolute or under ~)")(r, kp, value)
     if ".." in value.split("/"):
-        raise Invalid(f"{value!r} contains `..`: releases would land outside the folder it names; "
+        raise Invalid(f"{shown(value)} contains `..`: releases would land outside the folder it names; "
                       "write the folder itself, e.g. ~/rosdeploy or /opt/rosdeploy")
     if value.startswith("/") and normal_path(value) == "/":     # `/.` and `/./` are the root as well
-        raise Invalid(f"{value!r} is the robot's root folder: releases need a folder of their own, "
+        raise Invalid(f"{shown(value)} is the robot's root folder: releases need a folder of their own, "
                       "e.g. ~/rosdeploy or /opt/rosdeploy")
+    too_long = remote_root_too_long(value)
+    if too_long:
+        raise Invalid(too_long)
     return value
+
+
+def remote_root_too_long(path: str) -> str | None:
+    """Why a deploy root (deploy_root, rosdeploy_deploy_root) is too long for the robot, or None.
+
+    Unbounded, it validated and then failed on the robot at the first mkdir (ENAMETOOLONG), after
+    the images were pulled."""
+    longest = max(len(name) for name in path.split("/"))
+    if len(path) <= MAX_REMOTE_ROOT and longest <= MAX_PATH_NAME:
+        return None
+    what = (f"a path of {len(path)} characters" if len(path) > MAX_REMOTE_ROOT
+            else f"a path with a folder name of {longest} characters")
+    return (f"{what}: a deploy root may have at most {MAX_REMOTE_ROOT} characters (releases "
+            f"and their files go below it), and {MAX_PATH_NAME} in each name (Linux's limit); use a short "
+            "folder, e.g. ~/rosdeploy or /opt/rosdeploy")
 
 
 def _compose_passthrough(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -775,7 +800,7 @@ def _compose_schema(r: Reader, kp: KeyPath, extra: dict) -> None:
             checked[key] = item
         else:
             hint = did_you_mean(key, [k for k in known if k not in MANAGED_COMPOSE])
-            r.error(kp + (key,), f"unknown compose service key {key!r}: {hint or 'see the Compose specification'}"
+            r.error(kp + (key,), f"unknown compose service key {shown(key)}: {hint or 'see the Compose specification'}"
                                  " (Compose v1 would refuse the file)")
     document = {"services": {"s": checked}}
     if schema_quick.verdict(schema, document) is True:
@@ -987,7 +1012,7 @@ def _check_image_registry(r: Reader, kp: KeyPath, image: Any, registry: Any) -> 
     elif not own and isinstance(registry, str) and _too_long_under(registry, image):
         r.error(kp, _long_image_name(f"{registry}/{image.split('@')[0]}"))
     elif not own and "registry" not in r.doc.data:
-        r.error(kp, f"no `registry:` is set and {image!r} has no registry host: add a top-level "
+        r.error(kp, f"no `registry:` is set and {shown(image)} has no registry host: add a top-level "
                     f"`registry: registry.local:5000`, or write the full ref, e.g. docker.io/{image}")
 
 
@@ -1104,16 +1129,16 @@ def _robot_file(r: Reader, kp: KeyPath, value: Any) -> Any:
                       "or `var:` (an inventory variable, e.g. calibration in host_vars)")
     kind, source = kinds[0], d[kinds[0]]
     if kind == "var" and not ENV_RE.fullmatch(source):
-        raise Invalid(f"{source!r} is not an inventory variable name: use {_pattern_hint(ENV_RE)}", (kind,))
+        raise Invalid(f"{shown(source)} is not an inventory variable name: use {_pattern_hint(ENV_RE)}", (kind,))
     if kind != "var" and (source.startswith(("/", "~")) or ".." in source.split("/")
                           or not _FILE_SOURCE_RE.fullmatch(source)):
-        raise Invalid(f"{source!r} must be a path inside the fleet repo, relative to the fleet "
+        raise Invalid(f"{shown(source)} must be a path inside the fleet repo, relative to the fleet "
                       "file, without `..` (e.g. params/{{ inventory_hostname }}.yaml)", (kind,))
     if "target" not in d:   # reported as missing (or a key near it suggested)
         raise Invalid()
     target = d["target"]
     if not ABSOLUTE_PATH_RE.fullmatch(target) or ".." in target.split("/") or target.endswith("/"):
-        raise Invalid(f"{target!r} must be an absolute file path in the container, "
+        raise Invalid(f"{shown(target)} must be an absolute file path in the container, "
                       "e.g. /config/params.yaml", ("target",))
     if len(target) > 4096 or max(map(len, target.split("/"))) > 255:
         # its name is a file of the release (store/<digest>/<name>): render would fail to write it

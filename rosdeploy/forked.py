@@ -17,7 +17,7 @@ import os
 import pickle
 import signal
 import sys
-from typing import IO, Any, Callable, Iterator, Sequence, TypeVar
+from typing import IO, Any, Callable, Generator, Sequence, TypeVar
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -42,7 +42,7 @@ def workers(items: int) -> int:
     return max(1, min(cores, MAX_WORKERS, items // (MIN_ITEMS // 2)))
 
 
-def mapped(func: Callable[[T], R], items: Sequence[T]) -> Iterator[R]:
+def mapped(func: Callable[[T], R], items: Sequence[T]) -> Generator[R, None, None]:
     """func(item) for each item, in order; the first slice's results come as they are computed."""
     count = workers(len(items))
     if count == 1:

@@ -27,6 +27,7 @@ from typing import Any, Mapping
 
 from rosdeploy import rotation
 from rosdeploy.commands import Command, load, script
+from rosdeploy.errors import shown
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 
 RULES_FILE = "99-rosdeploy.rules"
@@ -65,10 +66,10 @@ def become(host: Host, asked_password: str | None = None) -> Become:
                                   "ansible_become: true (and grant sudo), connect as root, or pass --no-host-changes")
     target = str(v.get("ansible_become_user") or "root")
     if target != "root":
-        return Become("", refused=f"ansible_become_user is {target!r}: host changes need root")
+        return Become("", refused=f"ansible_become_user is {shown(target)}: host changes need root")
     method = str(v.get("ansible_become_method") or "sudo")
     if method != "sudo":
-        return Become("", refused=f"ansible_become_method {method!r} is not supported: use sudo")
+        return Become("", refused=f"ansible_become_method {shown(method)} is not supported: use sudo")
     password = asked_password or v.get("ansible_become_password") or v.get("ansible_become_pass")
     return Become("sudo-S", str(password)) if password else Become("sudo-n")
 

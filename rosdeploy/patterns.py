@@ -21,7 +21,8 @@ exits 0). `localhost` is not Ansible's implicit localhost: rosdeploy deploys
 over SSH to inventory hosts only, so an absent localhost is refused with how to
 add it. A `[` or `]` without its pair is refused (Ansible's split drops it, so
 `~r[` selected every host starting with r), and so is a `~regex` whose matching
-takes more than REGEX_BUDGET seconds (catastrophic backtracking, `~(a+)+b`).
+takes more than REGEX_BUDGET seconds (catastrophic backtracking, `~(a+)+b`), and a control
+character (`--limit "$(cat list)"`: Ansible splits on the newline, so a list went out unnoticed).
 A subscript past the group's end selects nothing (a warning, as above); one of
 more than MAX_INDEX_DIGITS digits is refused (Python's int() refuses 4300, where
 Ansible fails with an internal error), and so is an `@file` that is not a
@@ -39,7 +40,7 @@ from contextlib import contextmanager
 from typing import Callable, Iterator, Mapping, Sequence
 
 from rosdeploy import suggest
-from rosdeploy.errors import InventoryError, Problem
+from rosdeploy.errors import InventoryError, Problem, shown
 
 _GLOB_CHARS = frozenset("*?[")
 # Ansible's subscript: `group[3]`, `group[-1]`, `group[1:4]`, `group[2:]`.
@@ -50,6 +51,7 @@ _TERM = re.compile(r"(?:[^\s:\[\]]|\[[^\]]*\])+")
 _WORD = re.compile(r"(?:[^\s:\[\]]|\[[^\]]*\]|[\[\]])+")
 _HOST_PORT = re.compile(r"[^:\[\]\s]+:[0-9]+")
 _LOCALHOST = ("localhost", "127.0.0.1", "::1")
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 # Seconds all the matching of one pattern may take. A `~regex` is Python's `re`, as in Ansible, so
 # `~(a+)+b` backtracks exponentially on a long host name; normal patterns over thousands of hosts
 # take milliseconds, so one second is far from any real selection and well within a prompt reply.
@@ -59,6 +61,8 @@ REGEX_BUDGET = 1.0
 MAX_INDEX_DIGITS = 18
 # An `@file` of hosts: 1 MB holds some 50,000 host names; a fifo or /dev/zero would never end.
 MAX_LIMIT_FILE = 1 << 20
+# Unmatched terms a "selects no robot" message explains; the rest are counted.
+MAX_SHOWN_TERMS = 5
 
 
 class _OverBudget(Exception):
@@ -76,10 +80,11 @@ def select(pattern: str | None, hosts: Sequence[str], groups: Mapping[str, Seque
     """
     if pattern is None:
         return tuple(hosts)
+    _refuse_control(pattern, where)
     terms = _read_files(split(pattern), where)
     if not terms:
         what = "names no host or group (a `[` without its `]`?)" if pattern.strip(" ,:") else "is empty"
-        raise _error(where, f"pattern {pattern!r} {what}: give host or group names, e.g. 'site_north:!amr-n2'")
+        raise _error(where, f"pattern {shown(pattern)} {what}: give host or group names, e.g. 'site_north:!amr-n2'")
     _refuse_stray_bracket(pattern, where)
     _refuse_huge_index(terms, where)
     unmatched: list[Problem] = []
@@ -92,11 +97,30 @@ def select(pattern: str | None, hosts: Sequence[str], groups: Mapping[str, Seque
             raise _error(where, "localhost is not in the inventory: rosdeploy deploys over SSH to inventory "
                                 "hosts only (no implicit localhost as in Ansible); to target this machine, add "
                                 "it, e.g. `localhost: {ansible_host: 127.0.0.1}`")
-        why = "; ".join(p.message for p in unmatched) or "every term names something, but together (&, !, [n]) " \
-                                                         "they leave nothing; loosen the pattern"
-        raise _error(where, f"pattern {pattern!r} selects no robot: {why}")
+        raise _error(where, f"pattern {shown(pattern)} selects no robot: {_why_nothing(unmatched)}")
     order = {name: i for i, name in enumerate(hosts)}
     return tuple(sorted(chosen, key=order.__getitem__))
+
+
+def _refuse_control(pattern: str, where: str) -> None:
+    """No host name holds a control character. A newline (`--limit "$(cat list)"`) was read as a
+    separator, as Ansible's split on whitespace reads it, so a pasted list deployed to all of it
+    unnoticed; a tab or ESC is a paste accident. Say how to write a list instead."""
+    found = _CONTROL.search(pattern)
+    if found:
+        raise _error(where, f"pattern {shown(pattern)} holds a control character ({found.group()!r}): "
+                            "separate patterns with `:` or `,` (e.g. 'r1:r2'), or list them one a line in "
+                            "a file and give @FILE")
+
+
+def _why_nothing(unmatched: list[Problem]) -> str:
+    """The unmatched terms of a pattern that selects nothing, the first few only: a 5,000-character
+    `a1:a2:...` made one message of 100 KB (each term is still a warning line of its own)."""
+    if not unmatched:
+        return "every term names something, but together (&, !, [n]) they leave nothing; loosen the pattern"
+    more = len(unmatched) - MAX_SHOWN_TERMS
+    return "; ".join(p.message for p in unmatched[:MAX_SHOWN_TERMS]) + \
+        (f"; and {more} more term(s) that match no host or group" if more > 0 else "")
 
 
 def split(pattern: str) -> list[str]:
@@ -128,21 +152,21 @@ def _limit_file(path: str, where: str) -> str:
     try:
         info = os.stat(path)
     except (OSError, ValueError):
-        raise _error(where, f"unable to find limit file {path!r} (`@` reads host patterns from a file): "
+        raise _error(where, f"unable to find limit file {shown(path)} (`@` reads host patterns from a file): "
                             "fix the path, or drop the `@`") from None
     if not stat.S_ISREG(info.st_mode):
-        raise _error(where, f"limit file {path!r} is not a regular file (a directory, fifo or device): "
+        raise _error(where, f"limit file {shown(path)} is not a regular file (a directory, fifo or device): "
                             "give a file of host patterns, one a line")
     if info.st_size > MAX_LIMIT_FILE:
-        raise _error(where, f"limit file {path!r} is larger than {MAX_LIMIT_FILE >> 20} MB: that is no list "
+        raise _error(where, f"limit file {shown(path)} is larger than {MAX_LIMIT_FILE >> 20} MB: that is no list "
                             "of hosts; give a file of host patterns, one a line")
     try:
         with open(path, "rb") as handle:
             return handle.read(MAX_LIMIT_FILE + 1).decode("utf-8")
     except OSError as exc:
-        raise _error(where, f"cannot read limit file {path!r}: {exc.strerror or exc}") from None
+        raise _error(where, f"cannot read limit file {shown(path)}: {exc.strerror or exc}") from None
     except UnicodeDecodeError:
-        raise _error(where, f"limit file {path!r} is not UTF-8 text: give a file of host patterns, "
+        raise _error(where, f"limit file {shown(path)} is not UTF-8 text: give a file of host patterns, "
                             "one a line") from None
 
 
@@ -154,7 +178,7 @@ def _refuse_stray_bracket(pattern: str, where: str) -> None:
     for word in _WORD.findall(pattern):
         if word.lstrip("&!").startswith("~"):
             _matcher(word.lstrip("&!"), where)      # an invalid regex is named with the regex error
-    raise _error(where, f"pattern {pattern!r} has a `[` or `]` without its pair (Ansible would drop it and "
+    raise _error(where, f"pattern {shown(pattern)} has a `[` or `]` without its pair (Ansible would drop it and "
                         f"select other hosts than written): close the bracket, e.g. 'site_north[0:2]'")
 
 
@@ -189,7 +213,7 @@ def _budget(pattern: str, where: str) -> Iterator[None]:
         signal.setitimer(signal.ITIMER_REAL, REGEX_BUDGET)
         yield
     except _OverBudget:
-        raise _error(where, f"pattern {pattern!r} took more than {REGEX_BUDGET:g} s to match the host names "
+        raise _error(where, f"pattern {shown(pattern)} took more than {REGEX_BUDGET:g} s to match the host names "
                             "(a regular expression that backtracks, like `(a+)+`): simplify the regex, "
                             "or use a glob such as 'amr-*'") from None
     finally:
@@ -252,7 +276,7 @@ def _matcher(base: str, where: str) -> Callable[[str], bool]:
         try:
             regex = re.compile(base[1:])
         except (re.error, OverflowError, RecursionError) as exc:   # `a{99999999999}`: OverflowError
-            raise _error(where, f"invalid regular expression {base!r}: {exc}; fix it or use a glob") from exc
+            raise _error(where, f"invalid regular expression {shown(base)}: {exc}; fix it or use a glob") from exc
         return lambda name: regex.match(name) is not None
     if _GLOB_CHARS & set(base):
         return lambda name: fnmatch.fnmatchcase(name, base)
@@ -285,9 +309,9 @@ def _unmatched(term: str, hosts: Sequence[str], groups: Mapping[str, Sequence[st
                strict: bool) -> Problem:
     hint = suggest.did_you_mean(term, [*groups, *hosts]) or "check the spelling against the inventory"
     if strict:
-        return Problem(where, None, "", f"exclusion {term!r} matches no host or group: {hint} (an exclusion "
+        return Problem(where, None, "", f"exclusion {shown(term)} matches no host or group: {hint} (an exclusion "
                                         "that excludes nothing would deploy to the robots meant to be left out)")
-    return Problem(where, None, "", f"{term!r} matches no host or group, ignored (as Ansible does): {hint}",
+    return Problem(where, None, "", f"{shown(term)} matches no host or group, ignored (as Ansible does): {hint}",
                    severity="warning")
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import functools
 import gc
-from contextlib import contextmanager
+from contextlib import closing, contextmanager
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
@@ -92,7 +92,9 @@ def gc_paused() -> Iterator[None]:
 def deployable(project: Project, hosts: Sequence[Host], on_release: OnRelease = None,
                ) -> tuple[dict[str, RenderedRelease], list[Problem]]:
     """Every robot's release and the input warnings, after every rule ran; InputError on any error.
-    `on_release`: called with each release as soon as it is rendered, before any rule ran."""
+    `on_release`: called with each release as soon as it is rendered, before any rule ran, in the
+    process that rendered it: a forked child for a large fleet, so what it does must land outside
+    this process's memory (render's files). It may run twice for a robot whose child failed."""
     releases, problems = prepare(project, hosts, on_release)
     problems = gate(problems)
     errors = [p for p in problems if p.severity == "error"]
@@ -123,29 +125,31 @@ def _render_all(project: Project, hosts: Sequence[Host], on_release: OnRelease =
     failed: dict[tuple, tuple[Problem, list[str]]] = {}
     on_targets: OnTargets = {}
     todo = [host for host in hosts if host.name not in blocked]
-    work = functools.partial(_render_one, renderer, checks.TargetRules(project.spec))
-    for host, (outcome, found) in zip(todo, forked.mapped(work, todo), strict=True):
-        if isinstance(outcome, RenderedRelease):
-            releases[host.name] = outcome
-            for rule_id, p in found:
-                on_targets.setdefault(rule_id, []).append((p, host.name))
-            if on_release is not None:
-                on_release(outcome)
-            continue
-        for p in outcome:
-            same = (p.file, p.line, p.key, p.message.replace(host.name, ""))
-            failed.setdefault(same, (p, []))[1].append(host.name)
+    work = functools.partial(_render_one, renderer, checks.TargetRules(project.spec), on_release)
+    # closing(): on any way out, the children are ended before the caller cleans up after them
+    with closing(forked.mapped(work, todo)) as outcomes:
+        for host, (outcome, found) in zip(todo, outcomes, strict=True):
+            if isinstance(outcome, RenderedRelease):
+                releases[host.name] = outcome
+                for rule_id, p in found:
+                    on_targets.setdefault(rule_id, []).append((p, host.name))
+                continue
+            for p in outcome:
+                same = (p.file, p.line, p.key, p.message.replace(host.name, ""))
+                failed.setdefault(same, (p, []))[1].append(host.name)
     return releases, [_same_on(p, robots) for p, robots in failed.values()], on_targets
 
 
-def _render_one(renderer: Renderer, rules: TargetRules, host: Host,
+def _render_one(renderer: Renderer, rules: TargetRules, on_release: OnRelease, host: Host,
                 ) -> tuple[RenderedRelease | tuple[Problem, ...], tuple[tuple[str, Problem], ...]]:
     """One robot's release and what the release rules find on it, or what stops it (values that
-    pickle: forked.mapped may run this in a child)."""
+    pickle: forked.mapped may run this in a child, and on_release with it)."""
     try:
         release = renderer.render(host)
     except RenderError as exc:
         return tuple(exc.problems), ()
+    if on_release is not None:
+        on_release(release)
     return release, rules(host, release)
 
 

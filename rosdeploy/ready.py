@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, ContextManager, Mapping
 
 from rosdeploy import commands
+from rosdeploy.errors import shown
 from rosdeploy.suggest import did_you_mean
 from rosdeploy.yamlsrc import Doc, dotted
 
@@ -113,7 +114,7 @@ def convert(r: Any, kp: tuple, value: Any) -> ReadyPolicy | bool | None:
             try:
                 times[key] = parse_duration(value[key])
             except ValueError:
-                r.error(kp + (key,), f"must be a duration like 10s, 2m or 1h; got {value[key]!r}")
+                r.error(kp + (key,), f"must be a duration like 10s, 2m or 1h; got {shown(value[key])}")
     if times.get("interval") == 0:
         r.error(kp + ("interval",), "must be above 0 (the pause between two checks)")
     when = value.get("when")
@@ -156,13 +157,13 @@ def _topic(r: Any, kp: tuple, value: dict) -> Condition | None:
 
     topic = value["topic"]
     if not isinstance(topic, str) or not TOPIC_RE.fullmatch(topic):
-        r.error(kp + ("topic",), f"{topic!r} is not an absolute ROS topic name, e.g. /robot_mode")
+        r.error(kp + ("topic",), f"{shown(topic)} is not an absolute ROS topic name, e.g. /robot_mode")
         return None
     if "quiet" in value:
         try:
             return Condition("quiet", topic=topic, quiet=parse_duration(value["quiet"]))
         except ValueError:
-            r.error(kp + ("quiet",), f"must be a duration like 5s; got {value['quiet']!r}")
+            r.error(kp + ("quiet",), f"must be a duration like 5s; got {shown(value['quiet'])}")
             return None
     ops = [k for k in OPS if k in value]
     if len(ops) != 1:
@@ -176,10 +177,10 @@ def _topic(r: Any, kp: tuple, value: dict) -> Condition | None:
         r.error(kp + (ops[0],), "must be a string, number or true/false")
         return None
     if isinstance(expected, float) and not math.isfinite(expected):   # `.nan` equals nothing: never ready
-        r.error(kp + (ops[0],), f"must be a finite number; got {expected!r}")
+        r.error(kp + (ops[0],), f"must be a finite number; got {shown(expected)}")
         return None
     if OPS[ops[0]] not in ("==", "!=") and (isinstance(expected, bool) or not isinstance(expected, (int, float))):
-        r.error(kp + (ops[0],), f"`{ops[0]}` compares numbers; got {expected!r}")
+        r.error(kp + (ops[0],), f"`{ops[0]}` compares numbers; got {shown(expected)}")
         return None
     return Condition("topic", topic=topic, field=field.lstrip("."), op=OPS[ops[0]], value=expected)
 
@@ -187,7 +188,7 @@ def _topic(r: Any, kp: tuple, value: dict) -> Condition | None:
 def _command(r: Any, kp: tuple, value: dict) -> Condition | None:
     service, command = value["service"], value.get("command")
     if not isinstance(service, str) or not SERVICE_RE.fullmatch(service):
-        r.error(kp + ("service",), f"{service!r} is not a service name")
+        r.error(kp + ("service",), f"{shown(service)} is not a service name")
         return None
     if isinstance(command, str):
         command = ["sh", "-c", command]
@@ -201,7 +202,7 @@ def _command(r: Any, kp: tuple, value: dict) -> Condition | None:
 def _lock(r: Any, kp: tuple, value: dict) -> Condition | None:
     path = value["lock"]
     if not isinstance(path, str) or not LOCK_PATH_RE.fullmatch(path) or ".." in path.split("/"):
-        r.error(kp + ("lock",), f"{path!r} is not a path on the robot: absolute or under ~/, "
+        r.error(kp + ("lock",), f"{shown(path)} is not a path on the robot: absolute or under ~/, "
                                 "letters, digits and ._@+- only")
         return None
     return Condition("lock", path=path)

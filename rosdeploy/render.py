@@ -27,7 +27,7 @@ import yaml
 from rosdeploy import restarts, rotation
 from rosdeploy.checks import host_problem, parse_env
 from rosdeploy.compose_data import compose_data
-from rosdeploy.errors import Problem, RenderError
+from rosdeploy.errors import Problem, RenderError, shown
 from rosdeploy.files import FileRenderer
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
 from rosdeploy.inventory.templating import secret_read, secret_reads
@@ -142,7 +142,7 @@ def xml(value: Any) -> str:
     """Escape for XML text and attribute values."""
     text = str(value)
     if _LINE_BREAKS.search(text.replace("\t", "")) or _YAML_UNSAFE.search(text):
-        raise _Rejected(f"{text!r} contains a control character and cannot go into an XML file")
+        raise _Rejected(f"{shown(text)} contains a control character and cannot go into an XML file")
     # What xml.sax.saxutils.escape(text, {'"': ..., "'": ...}) does; that module imports
     # urllib.request (http.client, ssl, email): 12 ms of every command's start (issue 18).
     return (text.replace("&", "&amp;").replace(">", "&gt;").replace("<", "&lt;")
@@ -168,14 +168,14 @@ def env_value(value: Any) -> str:
 def udev_value(value: Any) -> str:
     text = str(value)
     if '"' in text or "\\" in text or _LINE_BREAKS.search(text):
-        raise _Rejected(f"{text!r} cannot go into a udev rule (no quotes, backslashes or control characters)")
+        raise _Rejected(f"{shown(text)} cannot go into a udev rule (no quotes, backslashes or control characters)")
     return text
 
 
 def logrotate_path(value: Any) -> str:
     text = str(value)
     if '"' in text or "{" in text or "}" in text or _LINE_BREAKS.search(text):
-        raise _Rejected(f"{text!r} cannot go into a logrotate config (no quotes, braces or control characters)")
+        raise _Rejected(f"{shown(text)} cannot go into a logrotate config (no quotes, braces or control characters)")
     return f'"{text}"' if any(c.isspace() for c in text) else text
 
 
@@ -285,7 +285,7 @@ def _size_bytes(text: str) -> int:
 
 def _host_problem(host: Host, key: str, message: str) -> Problem:
     """At the var `key` where its value was set, else where the robot is declared."""
-    return host_problem(host, key, f"robot {host.name!r}: {message}")
+    return host_problem(host, key, f"robot {shown(host.name)}: {message}")
 
 
 def _with_mounts(svc: ServiceView, mounts: tuple[str, ...]) -> ServiceView:
@@ -332,10 +332,11 @@ class Renderer:
     def __init__(self, spec: FleetSpec) -> None:
         self.spec = spec
         if spec.rmw not in RMW:
-            raise RenderError([self._problem(("ros", "rmw"), f"unknown rmw {spec.rmw!r} (use {' or '.join(RMW)})")])
+            raise RenderError([self._problem(("ros", "rmw"),
+                                             f"unknown rmw {shown(spec.rmw)} (use {' or '.join(RMW)})")])
         if spec.network_mode not in ("host", "bridge"):
             raise RenderError([self._problem(("ros", "network_mode"),
-                                             f"unknown network_mode {spec.network_mode!r} (use host or bridge)")])
+                                             f"unknown network_mode {shown(spec.network_mode)} (use host or bridge)")])
         self.rmw_implementation, self.dds_file, self.dds_env = RMW[spec.rmw]
         self.override = self._override_dir()
         self.env = self._environment()
@@ -423,7 +424,7 @@ class Renderer:
         templated: dict[str, jinja2.Template] = {}
         for key, value in svc.environment.items():
             if not key or "=" in key or _LINE_BREAKS.search(key):
-                problems.append(self._problem(where + ("environment",), f"invalid variable name {key!r}"))
+                problems.append(self._problem(where + ("environment",), f"invalid variable name {shown(key)}"))
             elif "{{" in str(value) or "{%" in str(value):
                 try:
                     templated[key] = value_template(self.env, str(value))
@@ -434,7 +435,7 @@ class Renderer:
                 plain[key] = str(value)
         for name in svc.secret_env:
             if not _ENV_NAME.match(name):
-                problems.append(self._problem(where + ("secrets",), f"invalid variable name {name!r}"))
+                problems.append(self._problem(where + ("secrets",), f"invalid variable name {shown(name)}"))
         clash = sorted(RENDERED_SERVICE_KEYS & set(svc.extra))
         if clash:
             problems.append(self._problem(where + ("compose",),
@@ -539,7 +540,7 @@ class Renderer:
                 env[key] = self._render_value(template, host, variables, where, problems)
             if secret:
                 derived.add(key)
-                problems.append(self._problem(where, f"robot {host.name!r}: this value reads "
+                problems.append(self._problem(where, f"robot {shown(host.name)}: this value reads "
                                                      f"{secret_read(*min(secret.items()))} into compose.yml, which "
                                                      f"is not secret; {_TO_SECRETS.format(key=key)}"))
         self._check_env_leaks(host, svc.name, {k: v for k, v in env.items() if k not in derived}, problems)
@@ -549,12 +550,12 @@ class Renderer:
             path = host.devices.get(logical)
             if path is None:
                 problems.append(_host_problem(host, f"devices.{logical}",
-                                              f"service {svc.name} needs device {logical!r}, which the robot's "
+                                              f"service {svc.name} needs device {shown(logical)}, which the robot's "
                                               f"devices map does not define"))
                 continue
             if not path.startswith("/") or ":" in path or _SPACE.search(path):
                 problems.append(_host_problem(host, f"devices.{logical}",
-                                              f"device path {path!r} must be absolute, without ':' or spaces"))
+                                              f"device path {shown(path)} must be absolute, without ':' or spaces"))
                 continue
             devices.append(f"{path}:{path}")
             group = _device_group(path, logical, udev_by_path.get(path))
@@ -578,7 +579,7 @@ class Renderer:
             return render_value(template, {"vars": variables, "host": host, "inventory_hostname": host.name},
                                 variables)
         except jinja2.TemplateError as exc:
-            problems.append(self._problem(key, f"robot {host.name!r}: {exc.message}"))
+            problems.append(self._problem(key, f"robot {shown(host.name)}: {exc.message}"))
             return ""
 
     def _check_env_leaks(self, host: Host, service: str, env: Mapping[str, str], problems: list[Problem]) -> None:
@@ -586,7 +587,7 @@ class Renderer:
         secrets = _searched(host)
         for key in sorted(k for k, value in env.items() if any(s in value for s in secrets)):
             problems.append(self._problem(("services", service, "environment", key), (
-                f"robot {host.name!r}: this value copies a vault secret into compose.yml, which is not secret; "
+                f"robot {shown(host.name)}: this value copies a vault secret into compose.yml, which is not secret; "
                 f"{_TO_SECRETS.format(key=key)}")))
 
     def _secrets(self, host: Host, problems: list[Problem]) -> list[tuple[str, str]]:
@@ -607,8 +608,8 @@ class Renderer:
             if name in reserved:
                 problems.append(self._problem(key, f"{name} is a variable rosdeploy writes to .env itself"))
             elif var not in host.vars:
-                problems.append(_host_problem(host, var, f"service {service} reads secret {name} from var {var!r}, "
-                                                         "which is not defined for this robot"))
+                problems.append(_host_problem(host, var, f"service {service} reads secret {name} from var "
+                                                         f"{shown(var)}, which is not defined for this robot"))
             else:
                 value = host.vars[var]
                 try:
@@ -644,7 +645,7 @@ class Renderer:
         out = []
         for u in sorted(host.udev, key=lambda u: u.symlink):
             key = f"udev.{u.symlink}"
-            bad = [f"{what} {value!r}" for what, value, ok in (
+            bad = [f"{what} {shown(value)}" for what, value, ok in (
                 ("vendor id", u.vendor, _HEX4.match(u.vendor)), ("product id", u.product, _HEX4.match(u.product)),
                 ("symlink", u.symlink, re.fullmatch(r"[A-Za-z0-9_.+-]+(/[A-Za-z0-9_.+-]+)*", u.symlink)),
                 ("mode", u.mode, re.fullmatch(r"0?[0-7]{3}", u.mode))) if not ok]
@@ -674,7 +675,7 @@ class Renderer:
         for name, (default, valid, what) in TUNABLES.items():
             value = variables.get(name, default)
             if not valid(value):
-                problems.append(_host_problem(host, name, f"{name} must be {what}; got {value!r}"))
+                problems.append(_host_problem(host, name, f"{name} must be {what}; got {shown(value)}"))
             out[name] = value
         return out
 
@@ -708,7 +709,7 @@ class Renderer:
         message = getattr(exc, "message", None) or str(exc)
         missing = re.search(r"'([^']+)' is undefined|has no attribute '([^']+)'", message)
         what = f"undefined name {next(g for g in missing.groups() if g)!r}" if missing else message
-        return Problem(file, line, "", f"robot {host.name!r}: {what}" + (f" ({message})" if missing else ""))
+        return Problem(file, line, "", f"robot {shown(host.name)}: {what}" + (f" ({message})" if missing else ""))
 
     @staticmethod
     def _check_leaks(host: Host, files: Iterable[RenderedFile]) -> None:

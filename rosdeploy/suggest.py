@@ -4,6 +4,8 @@ from __future__ import annotations
 import difflib
 from typing import Iterable
 
+from rosdeploy.errors import shown
+
 # One cutoff for every site: 0.75 catches a dropped, doubled or swapped letter in names of
 # 6+ characters (ros_domian_id, rosdeploy_deploy_rot) without pairing unrelated short words.
 CUTOFF = 0.75
@@ -18,4 +20,4 @@ def closest(word: object, choices: Iterable[str], cutoff: float = CUTOFF) -> str
 def did_you_mean(word: object, choices: Iterable[str], cutoff: float = CUTOFF) -> str:
     """`did you mean 'x'?`, or "" when there is nothing to suggest."""
     near = closest(word, choices, cutoff)
-    return f"did you mean {near!r}?" if near else ""
+    return f"did you mean {shown(near)}?" if near else ""

@@ -34,7 +34,7 @@ from typing import Callable, Mapping, Sequence
 # cryptography is imported where a file is sealed or opened (~60 ms at import): `rosdeploy --help`,
 # completion and a `validate` of a fleet without vault files never load it.
 
-from rosdeploy.errors import Problem, VaultError
+from rosdeploy.errors import Problem, VaultError, shown
 from rosdeploy import yamlsrc
 
 MAGIC = b"$ROSDEPLOY_VAULT;"
@@ -163,7 +163,7 @@ def _check_params(params: ScryptParams, source: str) -> None:
 
 def _shown(text: str) -> str:
     """`text` quoted for a message, cut short: a header is input, maybe thousands of digits."""
-    return repr(text) if len(text) <= _SHOWN else f"{text[:_SHOWN]!r}... ({len(text)} characters)"
+    return shown(text, _SHOWN)
 
 
 def _b64(body: str, source: str) -> bytes:
@@ -275,7 +275,7 @@ class VaultId:
         if not at:
             label, source = "default", text
         if not label or not source:
-            raise _error("--vault-id", f"{text!r} is not LABEL@FILE (or LABEL@prompt, or FILE)")
+            raise _error("--vault-id", f"{shown(text)} is not LABEL@FILE (or LABEL@prompt, or FILE)")
         return VaultId(label, source)
 
 

@@ -24,6 +24,7 @@ from datetime import datetime, time as dtime, timedelta, timezone
 from typing import Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
+from rosdeploy.errors import shown
 from rosdeploy.ready import known_keys
 from rosdeploy.suggest import did_you_mean
 
@@ -63,7 +64,7 @@ def convert(r: Any, kp: tuple, value: Any) -> Window | bool | None:
     start = value.get("start")
     match = _START_RE.fullmatch(start) if isinstance(start, str) else None
     if match is None:
-        r.error(kp + ("start",), f'required: the local time the window opens, quoted, e.g. "01:00"; got {start!r}')
+        r.error(kp + ("start",), f'required: the local time the window opens, quoted, e.g. "01:00"; got {shown(start)}')
     # Each refusal is also kept here: the reader shows no second message under a value it
     # already refused (control characters), so its problem count need not grow.
     duration: float | None = None
@@ -74,12 +75,12 @@ def convert(r: Any, kp: tuple, value: Any) -> Window | bool | None:
     except ValueError:
         duration = None
         r.error(kp + ("duration",), f"required: how long it stays open, e.g. 3h or 90m (at most 7 days); "
-                                    f"got {value.get('duration')!r}")
+                                    f"got {shown(value.get('duration'))}")
     tz = value.get("tz", "UTC")
     try:
         ZoneInfo(str(tz))
     except (ZoneInfoNotFoundError, ValueError):
-        r.error(kp + ("tz",), f"{tz!r} is not a time zone name: use an IANA name like Europe/Berlin or UTC")
+        r.error(kp + ("tz",), f"{shown(tz)} is not a time zone name: use an IANA name like Europe/Berlin or UTC")
         tz = None
     if len(r.problems) > before or match is None or duration is None or tz is None:
         return None
@@ -95,7 +96,7 @@ def _days(r: Any, kp: tuple, value: Any) -> list[int]:
     for i, day in enumerate(value):
         name = str(day).lower()[:3]
         if name not in DAYS or str(day).lower() not in (name, _full(name)):
-            r.error(kp + (i,), f"{day!r} is not a day: use {', '.join(DAYS)} {did_you_mean(day, DAYS)}".strip())
+            r.error(kp + (i,), f"{shown(day)} is not a day: use {', '.join(DAYS)} {did_you_mean(day, DAYS)}".strip())
         else:
             out.append(DAYS.index(name))
     return out

@@ -7,6 +7,7 @@ values. Values stay plain dicts/lists/scalars: nothing downstream has to know.
 from __future__ import annotations
 
 import os
+import re
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,7 +15,7 @@ from typing import Any, Mapping, cast
 
 import yaml
 
-from rosdeploy.errors import InputError, Problem
+from rosdeploy.errors import InputError, Problem, shown
 
 KeyPath = tuple[Any, ...]
 
@@ -127,7 +128,8 @@ def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | 
         _check_depth(text)
         node = yaml.compose(text, Loader=_Composer)
     except yaml.YAMLError as exc:
-        raise InputError([Problem(path, _error_line(exc, text), "", f"invalid YAML: {_error_text(exc)}")]) from exc
+        raise InputError([Problem(path, _error_line(exc, text), "", f"invalid YAML: {_syntax_text(exc, text)}")]) \
+            from exc
     except RecursionError as exc:   # the bound above should make this unreachable; never a crash
         raise InputError([Problem(path, None, "", "invalid YAML: nested too deeply")]) from exc
     if node is None:
@@ -143,7 +145,8 @@ def load_data(text: str, path: str = "<text>") -> Any:
         _check_depth(text)
         node = yaml.compose(text, Loader=_Composer)
     except yaml.YAMLError as exc:
-        raise InputError([Problem(path, _error_line(exc, text), "", f"invalid YAML: {_error_text(exc)}")]) from exc
+        raise InputError([Problem(path, _error_line(exc, text), "", f"invalid YAML: {_syntax_text(exc, text)}")]) \
+            from exc
     if node is None:
         return None
     _check_expansion(node, path, text)
@@ -194,9 +197,64 @@ def _error_line(exc: yaml.YAMLError, text: str) -> int | None:
     return text.count("\n", 0, position) + 1 if isinstance(position, int) else None
 
 
+# YAML's limit on an implicit ("simple") key, the kind written `key: value`: on one line, and at
+# most 1024 characters before its `:`. Past it libyaml says "could not find expected ':'" or
+# "mapping values are not allowed in this context" (misleading: the `:` is there), at that `:`.
+MAX_SIMPLE_KEY = 1024
+_KEY_ERRORS = ("could not find expected ':'", "mapping values are not allowed in this context",
+               "did not find expected ',' or '}'",     # libyaml; then PyYAML's words:
+               "mapping values are not allowed here", "expected ',' or '}', but got ':'")
+_KEY_LEAD = re.compile(r"^(?:\s|[-?](?=\s))*")     # indentation, and `- ` / `? ` indicators
+_YAML_BREAK = re.compile(r"\r\n|[\n\r\x85\u2028\u2029]")
+
+
+def _syntax_text(exc: yaml.YAMLError, text: str) -> str:
+    """A syntax error in words; a key past MAX_SIMPLE_KEY named as such, not as a missing `:`."""
+    length = _long_key(exc, text)
+    if length is None:
+        return _error_text(exc)
+    return (f"a key of {length} characters: YAML allows at most {MAX_SIMPLE_KEY} in a key written "
+            "`key: value`; use a shorter key")
+
+
+def _long_key(exc: yaml.YAMLError, text: str) -> int | None:
+    """The length of the key whose `:` the error points at, when past MAX_SIMPLE_KEY; else None.
+
+    Found by hand on the error's line (no regex backtracking over a line that may be megabytes)."""
+    mark = getattr(exc, "problem_mark", None)
+    if getattr(exc, "problem", None) not in _KEY_ERRORS or mark is None or mark.column <= MAX_SIMPLE_KEY:
+        return None
+    before = _line_of(text, mark.line)[:mark.column + 1]
+    if not before.endswith(":"):
+        return None
+    before = before[:-1].rstrip()
+    if before[-1:] in ("'", '"'):     # a quoted key, from its opening quote
+        start = before.rfind(before[-1], 0, len(before) - 1)
+    else:                             # a plain key: after a flow `{`, `[` or `,`, else the whole line
+        start = max(before.rfind(c) for c in "{[,") + 1
+    lead, key = before[:start], before[start:]
+    if before[-1:] not in ("'", '"'):
+        key = _KEY_LEAD.sub("", key)
+    elif not (_KEY_LEAD.fullmatch(lead) or lead.rstrip().endswith(("{", "[", ","))):
+        return None                   # `a: "b": c`: a quoted value, not a key
+    if ": " in key and key[:1] not in ("'", '"'):
+        return None                   # `a: b: c`: the usual error, whatever the length
+    return len(key) if len(key) > MAX_SIMPLE_KEY else None
+
+
+def _line_of(text: str, number: int) -> str:
+    """Line `number` (0-based) of `text`, split where YAML breaks lines."""
+    start = 0
+    for count, found in enumerate(_YAML_BREAK.finditer(text)):
+        if count == number:
+            return text[start:found.start()]
+        start = found.end()
+    return text[start:]
+
+
 def _error_text(exc: yaml.YAMLError) -> str:
     if isinstance(exc, yaml.reader.ReaderError):
-        return f"character {exc.character!r} is not allowed in YAML ({exc.reason})" \
+        return f"character {shown(exc.character)} is not allowed in YAML ({exc.reason})" \
             if isinstance(exc.character, str) else f"{exc.reason}"
     return getattr(exc, "problem", None) or str(exc).splitlines()[0]
 
@@ -296,7 +354,7 @@ def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: s
     lines.setdefault(keypath, node.start_mark.line + 1)
     if not isinstance(node, yaml.ScalarNode) and node.tag not in _COLLECTION_TAGS:
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
-                                  f"unsupported YAML tag {node.tag!r}: write a plain list or mapping")])
+                                  f"unsupported YAML tag {shown(node.tag)}: write a plain list or mapping")])
     if isinstance(node, yaml.MappingNode):
         return _build_mapping(node, keypath, lines, path, c, duplicates)
     if isinstance(node, yaml.SequenceNode):

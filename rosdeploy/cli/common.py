@@ -8,7 +8,7 @@ import re
 from typing import TYPE_CHECKING, Any, NoReturn, Sequence
 
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
-                              EXIT_PARTIAL, InputError)
+                              EXIT_PARTIAL, InputError, shown)
 
 if TYPE_CHECKING:
     from rosdeploy.output import Output
@@ -105,7 +105,7 @@ def duration(text: str) -> float:
         return parse_duration(text)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"invalid duration {text!r}: use seconds or a duration like 30s, 2m, 1m30s, 500ms, "
+            f"invalid duration {shown(text)}: use seconds or a duration like 30s, 2m, 1m30s, 500ms, "
             "at most 8784h (a year)") from None
 
 
@@ -130,7 +130,7 @@ def _wave_word(word: str, least: int, hint: str) -> int | str:
     try:
         return wave_target(int(word) if re.fullmatch(r"[0-9]{1,9}", word) else word, least)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{word!r}: {hint}") from None
+        raise argparse.ArgumentTypeError(f"{shown(word)}: {hint}") from None
 
 
 def release_word(text: str) -> str:
@@ -138,7 +138,7 @@ def release_word(text: str) -> str:
     asked (`../../x` would otherwise travel to every robot as a release name)."""
     from rosdeploy.fleet import TAG_RE
     if not TAG_RE.fullmatch(text):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a version or release id: use letters, digits, `_`, "
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a version or release id: use letters, digits, `_`, "
                                          "`.` and `-`, e.g. 1.0.0 or 1.0.0-3f9a2c1d4e5f")
     return text
 
@@ -147,7 +147,7 @@ def group_prefix(text: str) -> str:
     """`--order-by site_`: what the fleet file's rollout.order_by takes."""
     from rosdeploy.fleet import GROUP_PREFIX_RE
     if not GROUP_PREFIX_RE.fullmatch(text):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a group prefix: letters, digits, `_`, `.` and `-`, "
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a group prefix: letters, digits, `_`, `.` and `-`, "
                                          "e.g. site_")
     return text
 
@@ -158,7 +158,7 @@ def positive_int(text: str) -> int:
     except ValueError:
         value = 0
     if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of at least 1")
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a whole number of at least 1")
     return value
 
 
@@ -168,11 +168,11 @@ def path_arg(text: str) -> str:
     if not text:     # `-i ""` (an unset shell variable): no path at all, not "the default"
         raise argparse.ArgumentTypeError("an empty path: name a file or directory")
     if "\0" in text:
-        raise argparse.ArgumentTypeError(f"{text!r} holds a NUL byte: no path can")
+        raise argparse.ArgumentTypeError(f"{shown(text)} holds a NUL byte: no path can")
     expanded = os.path.expanduser(text)
     if expanded.startswith("~"):
         user = expanded[1:].split("/", 1)[0]
-        raise argparse.ArgumentTypeError(f"{text!r}: there is no user {user!r} to expand ~{user} for")
+        raise argparse.ArgumentTypeError(f"{shown(text)}: there is no user {shown(user)} to expand ~{user} for")
     return expanded
 
 

@@ -128,29 +128,27 @@ def _check_out(root: Path, inventory: Path) -> None:
 
 def _render_to(root: Path, render: Callable[[Any], tuple[dict[str, RenderedRelease], list[Problem]]],
                ) -> tuple[dict[str, RenderedRelease], list[Problem]]:
-    """Render (every rule run) and write each robot's folder under root: while rendering, in a child
-    process (writeout.Writer), or afterwards where it cannot start. Nothing lands when a rule refuses."""
-    from rosdeploy import forked
+    """Render (every rule run) and write each robot's folder under root as it is rendered
+    (writeout.Staged). Nothing lands when a rule refuses, and the fleet's own errors come before
+    any "cannot write"."""
     from rosdeploy.cli import writeout
 
     try:
-        writer = writeout.Writer(root) if forked.can_fork() else None
-    except OSError:      # --out is a file, read-only...: said after the fleet's own errors, as without a writer
-        writer = None
-    try:
-        if writer is None:
-            releases, warnings = render(None)
-            writeout.write_all(root, releases)
-            return releases, warnings
-        done = False
-        try:
-            releases, warnings = render(writer.send)
-            done = True
-        finally:
-            writer.finish(commit=done)
-        return releases, warnings
-    except OSError as exc:
+        staged = writeout.Staged(root)
+    except OSError as exc:    # --out is a file, read-only...: said after the fleet's own errors
+        render(None)
         raise writeout.cannot_write(exc, root) from None
+    done = False
+    try:
+        releases, warnings = render(staged.write)
+        done = True
+    finally:
+        try:
+            staged.finish(done, releases if done else ())
+        except OSError as exc:
+            if done:                    # else the run's own error is on its way out
+                raise writeout.cannot_write(exc, root) from None
+    return releases, warnings
 
 
 def _release_json(release: RenderedRelease, folder: Path) -> dict[str, Any]:

@@ -11,7 +11,7 @@ import sys
 
 from rosdeploy import vault as vaultlib
 from rosdeploy.cli.common import add_command, path_arg
-from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem, VaultError
+from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem, VaultError, shown
 from rosdeploy.output import Output
 
 
@@ -101,7 +101,7 @@ def _encrypt(args: argparse.Namespace, out: Output) -> int:
 
 def _encrypt_string(args: argparse.Namespace, out: Output) -> int:
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", args.name):
-        raise VaultError([Problem("--name", None, "", f"{args.name!r} is not a variable name: use letters, "
+        raise VaultError([Problem("--name", None, "", f"{shown(args.name)} is not a variable name: use letters, "
                                                       "digits and '_'")])
     value = args.value
     if value is None:
@@ -161,7 +161,7 @@ def _run_editor(temp: str, path: str) -> None:
     try:
         done = subprocess.run([*editor, temp], check=False)
     except OSError as exc:
-        raise VaultError([Problem(path, None, "", f"cannot start the editor {editor[0]!r} ({exc.strerror}): "
+        raise VaultError([Problem(path, None, "", f"cannot start the editor {shown(editor[0])} ({exc.strerror}): "
                                                   "set $EDITOR")]) from exc
     if done.returncode != 0:
         raise VaultError([Problem(path, None, "", f"the editor exited {done.returncode}: the vault file "

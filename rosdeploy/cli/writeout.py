@@ -1,28 +1,24 @@
-"""`render --out DIR`: every robot's release on disk, written while the next robots render.
+"""`render --out DIR`: every robot's release on disk, written by the process that rendered it.
 
 Creating files is kernel time (500 robots are 3,500 files and 1,500 folders: 0.1-0.35 s on
-ext4, a quarter of the command), rendering is Python time. So a child process writes each
-release as soon as it is rendered, while this one renders the rest and runs the checks: the
-two overlap on two cores (threads would not: every syscall waits for the GIL the renderer
-holds). The child writes into a staging folder inside DIR and moves the robots' folders into
-place only once every check passed; a refused fleet leaves DIR as it was, and no DIR when
-there was none. Where there is no fork() (Windows), the releases are written afterwards.
+ext4, a quarter of the command). A large fleet renders in forked children (rosdeploy.forked),
+so each child writes the robots it rendered, on its own core, instead of sending their files
+back to be written here. Everything lands in a staging folder inside DIR first; the robots'
+folders move into place only once every check passed, so a refused fleet leaves DIR as it was,
+and no DIR when there was none.
 """
 from __future__ import annotations
 
-import functools
 import os
-import pickle
 import shutil
 import tempfile
 from pathlib import Path
-from typing import IO, Any, Callable, Iterable, Iterator, Mapping
+from typing import Iterable
 
 from rosdeploy.errors import InputError, Problem
 from rosdeploy.model import RenderedRelease
 
 STAGE_PREFIX = ".rosdeploy-render-"
-PIPE_BYTES = 1 << 20     # /proc/sys/fs/pipe-max-size's default
 Files = list[tuple[str, int, bytes]]     # (name inside the robot's folder, mode, content)
 
 
@@ -59,60 +55,43 @@ def cannot_write(exc: OSError, root: Path) -> InputError:
                                f"cannot write there ({reason}): give a folder you can write to")])
 
 
-class Writer:
-    """Releases sent with send() are written by a child process; finish(commit=True) puts them in place."""
+class Staged:
+    """A staging folder inside `root`: write(release) puts a robot's folder there, from whichever
+    process rendered it; finish(commit=True) moves every robot's folder into place. Any finish
+    leaves no staging folder, and no `root` when this made it and nothing landed.
+
+    A write that fails does not stop the render: the fleet's own errors, found later, say more
+    than "cannot write" does. The failure is kept and raised by finish(commit=True). A forked
+    child cannot keep it (its memory is gone when it exits), so there it raises: the child fails,
+    and forked.mapped renders its robots again here, where the same write fails and is kept."""
 
     def __init__(self, root: Path) -> None:
         self.root = root
         self.created, self.stage = _staging(root)
-        data_r, data_w = os.pipe()
-        status_r, status_w = os.pipe()
-        self.pid = os.fork()
-        if self.pid == 0:                       # the child: never returns into the caller's code
-            try:
-                os.close(data_w)
-                os.close(status_r)
-                _child(data_r, status_w, self.stage, self.root, self.created)
-            finally:
-                os._exit(1)
-        os.close(data_r)
-        os.close(status_w)
-        _widen(data_w)
-        self.pipe: IO[bytes] = os.fdopen(data_w, "wb")
-        self.status = status_r
+        self.pid = os.getpid()
+        self.failed: OSError | None = None
 
-    def send(self, release: RenderedRelease) -> None:
-        pickle.dump((release.host, files_of(release)), self.pipe, protocol=pickle.HIGHEST_PROTOCOL)
+    def write(self, release: RenderedRelease) -> None:
+        if self.failed is not None:
+            return
+        try:
+            write_release(os.path.join(self.stage, release.host), files_of(release))
+        except OSError as exc:
+            if os.getpid() != self.pid:
+                raise
+            self.failed = exc
 
-    def finish(self, commit: bool) -> None:
-        """Commit (move into place) or drop what was written. The child's OSError is raised here on a
-        commit; when dropping, the caller is failing already (a refusal, Ctrl-C) and says why."""
+    def finish(self, commit: bool, names: Iterable[str] = ()) -> None:
+        """Move `names` into place (commit), or drop what was written (the caller is failing)."""
+        done = False
         try:
             if commit:
-                pickle.dump(None, self.pipe)
-            self.pipe.close()
-        except BrokenPipeError:
-            pass                                 # the child is gone: its status says why
-        os.waitpid(self.pid, 0)
-        with os.fdopen(self.status, "rb") as status:
-            failed = status.read().decode("utf-8", "replace")
-        if failed and commit:
-            filename, _, reason = failed.partition("\0")
-            raise OSError(0, reason, filename or None)
-
-
-def write_all(root: Path, releases: Mapping[str, RenderedRelease]) -> None:
-    """Where no child can write: every release after the checks, the same way (staged, then moved
-    into place; a failure leaves no staging folder, and no `root` when this made it)."""
-    created, stage = _staging(root)
-    done = False
-    try:
-        for name, release in releases.items():
-            write_release(os.path.join(stage, name), files_of(release))
-        _move_into_place(stage, root, releases)
-        done = True
-    finally:
-        _clean(stage, root, drop_root=created and not done)
+                if self.failed is not None:
+                    raise self.failed
+                _move_into_place(self.stage, self.root, names)
+                done = True
+        finally:
+            _clean(self.stage, self.root, drop_root=self.created and not done)
 
 
 def _staging(root: Path) -> tuple[bool, str]:
@@ -126,52 +105,6 @@ def _clean(stage: str, root: Path, drop_root: bool) -> None:
     shutil.rmtree(stage, ignore_errors=True)
     if drop_root:
         shutil.rmtree(root, ignore_errors=True)
-
-
-def _widen(fd: int) -> None:
-    """A 1 MB pipe (Linux) instead of 64 KB: the renderer runs ~100 robots ahead of a disk that
-    stalls for a moment (a journal commit) instead of ~6, and waits only at the end if at all."""
-    try:
-        import fcntl
-        fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
-    except (ImportError, AttributeError, OSError):
-        pass
-
-
-def _child(data_fd: int, status_fd: int, stage: str, root: Path, created: bool) -> None:
-    failed, commit, names = "", False, []
-    try:
-        with os.fdopen(data_fd, "rb") as pipe:
-            for message in _messages(pipe):
-                if message is None:
-                    commit = True
-                elif not failed:               # after a failure: only drain, so the sender never blocks
-                    names.append(message[0])
-                    failed = _attempt(functools.partial(write_release, os.path.join(stage, message[0]), message[1]))
-        if commit and not failed:
-            failed = _attempt(lambda: _move_into_place(stage, root, names))
-    except BaseException as exc:               # Ctrl-C reaches the child too: clean up all the same
-        failed = failed or f"\0{exc!r}"
-    finally:
-        _clean(stage, root, drop_root=created and bool(failed or not commit))
-        os.write(status_fd, failed.encode("utf-8"))
-        os._exit(1 if failed else 0)           # not sys.exit: the parent's buffers are not ours to flush
-
-
-def _messages(pipe: IO[bytes]) -> Iterator[Any]:
-    while True:
-        try:
-            yield pickle.load(pipe)
-        except EOFError:
-            return
-
-
-def _attempt(work: Callable[[], None]) -> str:
-    try:
-        work()
-    except OSError as exc:
-        return f"{exc.filename or ''}\0{exc.strerror or exc}"
-    return ""
 
 
 def _move_into_place(stage: str, root: Path, names: Iterable[str]) -> None:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import socket
 from typing import Callable, Iterable, Mapping, Sequence
 
-from rosdeploy.errors import InputError
+from rosdeploy.errors import InputError, shown
 from rosdeploy.images.forward import Limiter
 from rosdeploy.images.refs import Layer, Pin, parse_rate, split_ref
 from rosdeploy.images.registry import Manifest, RegistryError, Upstream, get_manifest
@@ -92,14 +92,14 @@ def check_vars(hosts: Iterable[Host]) -> list[str]:
     for host in hosts:
         via = host.vars.get(VIA_VAR)
         if via is not None and via not in ROUTES:
-            problems.append(f"{host.source or host.name}: {host.name}: {VIA_VAR}: {via!r} is not a route: "
+            problems.append(f"{host.source or host.name}: {host.name}: {VIA_VAR}: {shown(via)} is not a route: "
                             "use registry or ssh")
         rate = host.vars.get(RATE_VAR)
         if rate is not None:
             try:
                 parse_rate(rate)
             except ValueError:
-                problems.append(f"{host.source or host.name}: {host.name}: {RATE_VAR}: {rate!r} is not a rate: "
+                problems.append(f"{host.source or host.name}: {host.name}: {RATE_VAR}: {shown(rate)} is not a rate: "
                                 "write e.g. 2MB/s or 500kB/s")
     return problems
 

@@ -15,6 +15,9 @@ from rosdeploy.vault import Vault, WrongPassword, is_encrypted
 from rosdeploy.yamlsrc import Doc, Encrypted, KeyPath
 
 
+BOM = "\ufeff".encode()
+
+
 class Reader:
     """Reads files, decrypting vault ones in memory, and turns YAML into Docs."""
 
@@ -27,6 +30,13 @@ class Reader:
             data = yamlsrc.read_bytes(str(path))
         except InputError as exc:
             problems.extend(exc.problems)
+            return None
+        if data.startswith(BOM) and is_encrypted(data[len(BOM):]):
+            # Not stripped: ansible-vault reads it as plain text too. It was refused as "a vars file
+            # must be a mapping", the header read as a YAML string.
+            problems.append(Problem(str(path), 1, "", "the file starts with a byte-order mark (U+FEFF) before its "
+                                                      "vault header, so it does not read as encrypted (in Ansible "
+                                                      "either): save it as UTF-8 without BOM"))
             return None
         plain, secret = self.vault.read(str(path), data)
         try:

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Mapping
 
+from rosdeploy.errors import shown
 from rosdeploy.inventory.draft import Draft, GroupDraft, Origin
 from rosdeploy.inventory.hostvars import BadValue, to_int
 from rosdeploy.yamlsrc import Doc
@@ -46,7 +47,7 @@ class Graph:
                 _walk_up(name, frozen, depth, ancestors)
         except _TooDeep as deep:
             draft.problems.append(Origin(Doc(draft.groups[deep.group].source, None)).problem(
-                (), f"group {deep.group!r} is nested more than {MAX_DEPTH} groups below `all`: flatten the "
+                (), f"group {shown(deep.group)} is nested more than {MAX_DEPTH} groups below `all`: flatten the "
                     "group tree (each group's vars and ancestors grow with its depth)"))
             return None
         order = {name: (depth[name], _priority(draft.groups[name], draft), name) for name in draft.groups}

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from rosdeploy import suggest
-from rosdeploy.errors import Problem
-from rosdeploy.fleet import REMOTE_PATH_RE, known_hosts_problem
+from rosdeploy.errors import Problem, shown
+from rosdeploy.fleet import REMOTE_PATH_RE, known_hosts_problem, remote_root_too_long
 from rosdeploy.inventory.draft import Layer, Origin
 from rosdeploy.inventory.known import (ANSIBLE_VARS, FALSE, HEX4, MODE, NAME, NEAR_MISS_CUTOFF, SERIAL,
                                        SHELL_UNSAFE, SUBSYSTEM, SYMLINK, TRUE, UDEV_KEYS, UDEV_REQUIRED,
@@ -52,7 +52,7 @@ def host_fields(name: str, read: Callable[[str], Any], origins: Mapping[str, Ori
                 return
             converted = spec.convert(value)
         except BadValue as bad:
-            errors.append(origins[var].problem((var, *bad.subpath), f"robot {name!r}: {bad.message}"))
+            errors.append(origins[var].problem((var, *bad.subpath), f"robot {shown(name)}: {bad.message}"))
             return
         if spec.field is None:
             normalised[var] = converted
@@ -81,8 +81,8 @@ def host_fields(name: str, read: Callable[[str], Any], origins: Mapping[str, Ori
 
 
 def _foreign(host: str, var: str, value: Any, spec: Var, origin: Origin) -> Problem:
-    shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
-    return origin.problem((var,), f"robot {host!r}: {var} is {shown}, not rosdeploy's {spec.what}: another tool's "
+    head = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+    return origin.problem((var,), f"robot {shown(host)}: {var} is {head}, not rosdeploy's {spec.what}: another tool's "
                                   f"variable, ignored by rosdeploy; give rosdeploy its own as {PREFIX}{var}",
                           severity="warning")
 
@@ -96,18 +96,18 @@ def check_layer(layer: Layer) -> tuple[list[Problem], list[Problem]]:
             errors.append(layer.origin.problem((key,), "variable names must be strings: quote it"))
         elif key.startswith(PREFIX) and key not in PREFIXED_VARS:
             hint = suggest.did_you_mean(key, PREFIXED_VARS) or f"known: {', '.join(sorted(PREFIXED_VARS))}"
-            errors.append(layer.origin.problem((key,), f"unknown rosdeploy variable {key!r}: {hint} "
+            errors.append(layer.origin.problem((key,), f"unknown rosdeploy variable {shown(key)}: {hint} "
                                                        "(the rosdeploy_ prefix is rosdeploy's own)"))
         elif key.lower().startswith(PREFIX) and not key.startswith(PREFIX):
             # Variable names are case-sensitive: `ROSDEPLOY_DEVICES` is not rosdeploy's, and would be
             # ignored without a word (the `rosdeploy_` check above and _near_miss's cutoff both miss it).
             hint = suggest.did_you_mean(key.lower(), PREFIXED_VARS) or f"known: {', '.join(sorted(PREFIXED_VARS))}"
-            warnings.append(layer.origin.problem((key,), f"{key!r} is not a variable rosdeploy reads (names are "
+            warnings.append(layer.origin.problem((key,), f"{shown(key)} is not a variable rosdeploy reads (names are "
                                                          f"case-sensitive, rosdeploy's are lower-case): {hint}",
                                                  severity="warning"))
         elif close := _near_miss(key):
-            warnings.append(layer.origin.problem((key,), f"{key!r} is not a variable rosdeploy reads: did you "
-                                                         f"mean {close!r}? (ignored if it is another tool's)",
+            warnings.append(layer.origin.problem((key,), f"{shown(key)} is not a variable rosdeploy reads: did you "
+                                                         f"mean {shown(close)}? (ignored if it is another tool's)",
                                                  severity="warning"))
     return errors, warnings
 
@@ -146,7 +146,7 @@ def to_int(value: Any, what: str) -> int:
         if len(value.strip()) > 100:   # int() of 4,300 digits raises; no setting takes 100
             raise BadValue(f"must be {what}, got a number of {len(value.strip())} digits")
         return int(value)
-    raise BadValue(f"must be {what}, got {value!r}")
+    raise BadValue(f"must be {what}, got {shown(value)}")
 
 
 def _to_port(value: Any) -> int:
@@ -169,16 +169,16 @@ def _to_bool(value: Any) -> bool:
     # Ansible's boolean(): INI writes `gpu=true` as a string.
     if isinstance(value, str) and value.strip().lower() in TRUE + FALSE:
         return value.strip().lower() in TRUE
-    raise BadValue(f"must be true or false, got {value!r}")
+    raise BadValue(f"must be true or false, got {shown(value)}")
 
 
 def _safe_text(value: Any, what: str, extra_unsafe: str = "") -> str:
     if not isinstance(value, str) or not value:
-        raise BadValue(f"must be {what} (a non-empty string), got {value!r}")
+        raise BadValue(f"must be {what} (a non-empty string), got {shown(value)}")
     bad = sorted(set(value) & (SHELL_UNSAFE | set(extra_unsafe)))
     if bad:
-        shown = ", ".join(repr(c) for c in bad)
-        raise BadValue(f"{what} {value!r} contains {shown}: whitespace and shell metacharacters are not "
+        chars = ", ".join(repr(c) for c in bad)
+        raise BadValue(f"{what} {shown(value)} contains {chars}: whitespace and shell metacharacters are not "
                        "allowed here; fix the value")
     return value
 
@@ -186,14 +186,14 @@ def _safe_text(value: Any, what: str, extra_unsafe: str = "") -> str:
 def _to_address(value: Any) -> str:
     address = _safe_text(value, "a host name or IP address")
     if address.startswith("-"):
-        raise BadValue(f"{address!r} starts with '-', which ssh would read as an option; fix the address")
+        raise BadValue(f"{shown(address)} starts with '-', which ssh would read as an option; fix the address")
     return address
 
 
 def _to_user(value: Any) -> str:
     user = _safe_text(value, "a user name")
     if user.startswith("-"):
-        raise BadValue(f"{user!r} starts with '-', which ssh would read as an option; fix the user name")
+        raise BadValue(f"{shown(user)} starts with '-', which ssh would read as an option; fix the user name")
     return user
 
 
@@ -202,7 +202,7 @@ def _to_local_path(value: Any) -> str:
     as Ansible (ssh) does for ansible_ssh_private_key_file; `{{ inventory_dir }}/...` for a
     path beside the inventory."""
     if not isinstance(value, str) or not value:
-        raise BadValue(f"must be a path to a file, got {value!r}")
+        raise BadValue(f"must be a path to a file, got {shown(value)}")
     return _safe_text(os.path.abspath(os.path.expanduser(value)), "a file path")
 
 
@@ -220,14 +220,18 @@ def _to_remote_root(value: Any) -> str:
     # The pattern admits letters, digits and `_.-` only: no shell metacharacter gets through.
     if not isinstance(value, str) or not REMOTE_PATH_RE.fullmatch(value) or ".." in value.split("/"):
         raise BadValue(f"must be an absolute path or one under ~ on the robot, without '..' or shell "
-                       f"metacharacters (e.g. /opt/rosdeploy or ~/rosdeploy), got {value!r}")
+                       f"metacharacters (e.g. /opt/rosdeploy or ~/rosdeploy), got {shown(value)}")
+    too_long = remote_root_too_long(value)
+    if too_long:
+        raise BadValue(too_long)
     return value
 
 
 def _to_route(value: Any) -> str:
     if value in IMAGE_ROUTES:
         return str(value)
-    raise BadValue(f"must be one of {', '.join(IMAGE_ROUTES)}, got {value!r}{did_you_mean_hint(value, IMAGE_ROUTES)}")
+    raise BadValue(f"must be one of {', '.join(IMAGE_ROUTES)}, got {shown(value)}"
+                   f"{did_you_mean_hint(value, IMAGE_ROUTES)}")
 
 
 def _as_is(value: Any) -> Any:
@@ -237,14 +241,14 @@ def _as_is(value: Any) -> Any:
 def _to_compose(value: Any) -> str:
     if value in COMPOSE_CHOICES:
         return str(value)
-    raise BadValue(f"must be one of {', '.join(COMPOSE_CHOICES)}, got {value!r}"
+    raise BadValue(f"must be one of {', '.join(COMPOSE_CHOICES)}, got {shown(value)}"
                    f"{did_you_mean_hint(value, COMPOSE_CHOICES)}")
 
 
 def _to_network(value: Any) -> str:
     if isinstance(value, str) and NAME.fullmatch(value):
         return value
-    raise BadValue(f"must be a network name (letters, digits, '_', '-', '.'), got {value!r}")
+    raise BadValue(f"must be a network name (letters, digits, '_', '-', '.'), got {shown(value)}")
 
 
 def _to_devices(value: Any) -> Mapping[str, str]:
@@ -254,7 +258,7 @@ def _to_devices(value: Any) -> Mapping[str, str]:
     out: dict[str, str] = {}
     for name, path in value.items():
         if not isinstance(name, str) or not NAME.fullmatch(name):
-            raise BadValue(f"invalid device name {name!r}: use letters, digits, '_', '-', '.'", (name,))
+            raise BadValue(f"invalid device name {shown(name)}: use letters, digits, '_', '-', '.'", (name,))
         out[name] = _device_path(path, (name,))
     return frozen_map(out)
 
@@ -267,7 +271,7 @@ def _device_path(path: Any, subpath: KeyPath) -> str:
         raise BadValue(bad.message, subpath) from None
     parts = text.split("/")
     if not text.startswith("/dev/") or ".." in parts or "." in parts or len(text) <= len("/dev/"):
-        raise BadValue(f"must be a device path under /dev on the robot (e.g. /dev/robot/lidar), got {text!r}",
+        raise BadValue(f"must be a device path under /dev on the robot (e.g. /dev/robot/lidar), got {shown(text)}",
                        subpath)
     return text
 
@@ -279,7 +283,7 @@ def _to_udev(value: Any) -> tuple[UdevDevice, ...]:
     seen: set[str] = set()
     for index, device in enumerate(devices):
         if device.symlink in seen:
-            raise BadValue(f"symlink {device.symlink!r} is listed twice: keep one entry", (index, "symlink"))
+            raise BadValue(f"symlink {shown(device.symlink)} is listed twice: keep one entry", (index, "symlink"))
         seen.add(device.symlink)
     return devices
 
@@ -289,7 +293,7 @@ def _udev_device(entry: Any, index: int) -> UdevDevice:
         raise BadValue("each udev entry must be a mapping with symlink, subsystem, vendor, product", (index,))
     for key in entry:
         if key not in UDEV_KEYS:
-            raise BadValue(f"unknown key {key!r}{did_you_mean_hint(key, UDEV_KEYS)} "
+            raise BadValue(f"unknown key {shown(key)}{did_you_mean_hint(key, UDEV_KEYS)} "
                            f"(known: {', '.join(UDEV_KEYS)})", (index, key))
     for key in UDEV_REQUIRED:
         if key not in entry:
@@ -310,7 +314,7 @@ def _udev_text(value: Any, pattern: re.Pattern[str], what: str, subpath: KeyPath
     if isinstance(value, str) and pattern.fullmatch(value):
         return value
     quote = " (quote it: YAML reads unquoted digits as a number)" if isinstance(value, int) else ""
-    raise BadValue(f"must be {what}, got {value!r}{quote}", subpath)
+    raise BadValue(f"must be {what}, got {shown(value)}{quote}", subpath)
 
 
 def _udev_optional(entry: Mapping[str, Any], key: str, pattern: re.Pattern[str], what: str,
@@ -325,10 +329,10 @@ def _udev_hex(value: Any, subpath: KeyPath) -> str:
 
 def _udev_symlink(value: Any, subpath: KeyPath) -> str:
     if isinstance(value, str) and value.startswith("/dev/"):
-        raise BadValue(f"write the symlink relative to /dev: {value[5:]!r}", subpath)
+        raise BadValue(f"write the symlink relative to /dev: {shown(value[5:])}", subpath)
     link = _udev_text(value, SYMLINK, "a path relative to /dev, e.g. robot/lidar", subpath)
     if ".." in link.split("/"):
-        raise BadValue(f"must stay inside /dev, got {link!r}", subpath)
+        raise BadValue(f"must stay inside /dev, got {shown(link)}", subpath)
     return link
 
 

@@ -9,13 +9,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
-from rosdeploy.errors import Problem
+from rosdeploy.errors import Problem, shown
 from rosdeploy.inventory.draft import Draft, Origin, make_layer, split_where
 from rosdeploy.inventory.known import GROUP_KEYS, did_you_mean_hint
 from rosdeploy.inventory.ranges import add_hosts, entries_left, valid_name
 from rosdeploy.yamlsrc import MAX_INT_BITS, MAX_NODES, Doc, KeyPath
 
 
+# A UTF-8 byte-order mark (older Windows editors write one) is refused rather than skipped: Ansible's
+# INI plugin decodes the file as plain UTF-8 and keeps the mark in the first line, so `\ufeff[lab]`
+# is no section header there and the inventory it reads differs from ours. Refused, the fix is
+# one save, and then both tools read the same hosts. (YAML files keep their mark: PyYAML skips it,
+# in Ansible as here, so both read them alike.)
+BOM = "\ufeff"
+BOM_FIX = ("the file starts with a byte-order mark (U+FEFF), which Ansible's INI reader takes as part of the "
+           "first line: save it as UTF-8 without BOM")
 _SECTION = re.compile(r"\[(?P<name>[^:\]\s]+)(?::(?P<kind>\w+))?\]\s*(?:[#;].*)?")
 _INI_GROUP_LINE = re.compile(r"(?P<name>[^:\]\s]+)\s*(?:[#;].*)?")
 # The 64 MiB file cap does not bound the cost of what a file builds: shlex reads ~1 MB/s, and
@@ -41,6 +49,9 @@ class _IniState:
 
 def parse_ini(path: Path, text: str, secret: bool, draft: Draft) -> None:
     state = _IniState(path, secret)
+    if text.startswith(BOM):
+        draft.problems.append(_ini_origin(state, 1).problem((), BOM_FIX))
+        return
     for number, raw in enumerate(_lines(text), 1):
         line = raw.strip()
         if not line or line[0] in "#;":
@@ -101,12 +112,12 @@ def _ini_section(state: _IniState, line: str, number: int, draft: Draft) -> None
     origin = _ini_origin(state, number)
     state.kind = "skip"  # until a valid header: lines under a broken one are not guessed at
     if not found:
-        draft.problems.append(origin.problem((), f"invalid section header {line!r}: write [group], "
+        draft.problems.append(origin.problem((), f"invalid section header {shown(line)}: write [group], "
                                                  "[group:vars] or [group:children], without spaces"))
         return
     name, kind = found["name"], found["kind"] or "hosts"
     if kind not in GROUP_KEYS:
-        draft.problems.append(origin.problem((), f"unknown section type {kind!r} in {line!r}: use :vars "
+        draft.problems.append(origin.problem((), f"unknown section type {shown(kind)} in {shown(line)}: use :vars "
                                                  f"or :children{did_you_mean_hint(kind, GROUP_KEYS)}"))
         return
     if not valid_name(name, origin, draft, "group"):
@@ -138,7 +149,7 @@ def _ini_host(state: _IniState, line: str, number: int, draft: Draft) -> None:
         key, eq, value = token.partition("=")
         if not eq or not key:
             draft.problems.append(origin.problem((), f"expected key=value after the host name, got "
-                                                     f"{token!r}: quote values that hold spaces"))
+                                                     f"{shown(token)}: quote values that hold spaces"))
             return
         if not _spend(state, value, number, draft):
             return
@@ -151,7 +162,7 @@ def _ini_var(state: _IniState, line: str, number: int, draft: Draft) -> None:
     key, eq, value = (part.strip() for part in line.partition("="))
     if not eq or not key:
         draft.problems.append(_ini_origin(state, number).problem(
-            (), f"expected key=value in [{state.group}:vars], got {line!r}"))
+            (), f"expected key=value in [{state.group}:vars], got {shown(line)}"))
         return
     assert state.section_vars is not None and state.section_lines is not None
     if not _spend(state, value, number, draft):
@@ -165,7 +176,7 @@ def _ini_child(state: _IniState, line: str, number: int, draft: Draft) -> None:
     found = _INI_GROUP_LINE.fullmatch(line)
     if not found:
         draft.problems.append(origin.problem((), f"expected a group name in [{state.group}:children], "
-                                                 f"got {line!r}"))
+                                                 f"got {shown(line)}"))
         return
     child = found["name"]
     if valid_name(child, origin, draft, "group"):
@@ -210,5 +221,5 @@ def check_undeclared(draft: Draft) -> None:
         if not group.declared:
             hint = did_you_mean_hint(group.name, declared)
             draft.problems.append(Problem(*split_where(group.source), group.name,
-                                          f"group {group.name!r} is never declared: add a [{group.name}] "
+                                          f"group {shown(group.name)} is never declared: add a [{group.name}] "
                                           f"section (it may be empty){hint}"))

@@ -6,6 +6,7 @@ import string
 from typing import Iterable
 
 from rosdeploy import suggest
+from rosdeploy.errors import shown
 
 
 # Real Ansible variables that merely look like the ones rosdeploy reads: never "did you mean".
@@ -50,4 +51,4 @@ FALSE = ("false", "no", "off", "0", "n", "f")
 def did_you_mean_hint(word: object, choices: Iterable[str]) -> str:
     """`; did you mean 'x'?` to append to a message, or ""."""
     close = suggest.closest(word, choices, cutoff=0.6)
-    return f"; did you mean {close!r}?" if close else ""
+    return f"; did you mean {shown(close)}?" if close else ""

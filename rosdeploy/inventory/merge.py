@@ -7,7 +7,7 @@ from itertools import chain
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from rosdeploy.errors import Problem
+from rosdeploy.errors import Problem, shown
 from rosdeploy.inventory.draft import Draft, GroupDraft, HostDraft, Layer, Origin, split_where
 from rosdeploy.inventory.graph import Graph
 from rosdeploy.inventory.hostvars import PREFIX, BadValue, check_layer, host_fields
@@ -147,7 +147,8 @@ def _written_from_vault(name: str, hostvars: HostVars, origins: dict[str, Origin
     for var in (v for short in _WRITTEN_AS_IS for v in (short, PREFIX + short) if v in origins):
         source = hostvars.secret_source(var)
         if source is not None:
-            problems.append(origins[var].problem((var,), f"robot {name!r}: {var} comes from vault var {source!r}, and "
+            problems.append(origins[var].problem((var,), f"robot {shown(name)}: {var} comes from vault var "
+                                                   f"{shown(source)}, and "
                                                    "rosdeploy writes it into files that are not secret (compose.yml, "
                                                    "udev rules): set it in a plain vars file"))
     return problems

@@ -6,6 +6,7 @@ import string
 import weakref
 from typing import Any
 
+from rosdeploy.errors import shown
 from rosdeploy.inventory.draft import Draft, Origin, make_layer
 from rosdeploy.inventory.known import NAME
 
@@ -34,10 +35,10 @@ def add_hosts(raw: str, group: str, host_vars: dict[str, Any], origin: Origin, d
             raise ValueError(f"it names {count} hosts, more than {MAX_RANGE_HOSTS}: check its bounds")
         names = _expanded(spec) if _spend(draft, count, raw, origin) else []
     except ValueError as exc:
-        draft.problems.append(origin.problem((), f"invalid host range {raw!r}: {exc}"))
+        draft.problems.append(origin.problem((), f"invalid host range {shown(raw)}: {exc}"))
         return
     if len(draft.hosts) + sum(name not in draft.hosts for name in names) > MAX_HOSTS:
-        draft.problems.append(origin.problem((), f"host range {raw!r} takes this inventory past {MAX_HOSTS} "
+        draft.problems.append(origin.problem((), f"host range {shown(raw)} takes this inventory past {MAX_HOSTS} "
                                                  "hosts: check the ranges' bounds"))
         _entries[draft] = MAX_ENTRIES + 1    # refused: later entries are skipped, not each reported
         return
@@ -60,7 +61,7 @@ def _spend(draft: Draft, count: int, raw: str, origin: Origin) -> bool:
     before = _entries.get(draft, 0)
     _entries[draft] = after = before + count
     if after > MAX_ENTRIES >= before:
-        draft.problems.append(origin.problem((), f"host entry {raw!r} takes this inventory past {MAX_ENTRIES} "
+        draft.problems.append(origin.problem((), f"host entry {shown(raw)} takes this inventory past {MAX_ENTRIES} "
                                                  "host entries, ranges expanded (the same hosts written in many "
                                                  "groups): list them in one group and make it a child of the others"))
     return after <= MAX_ENTRIES
@@ -122,12 +123,12 @@ def valid_name(name: str, origin: Origin, draft: Draft, what: str) -> bool:
         return True
     if what == "group" and name and not any(c.isspace() or not c.isprintable() for c in name):
         # Ansible keeps such a group name, with a warning (TRANSFORM_INVALID_GROUP_CHARS=never).
-        draft.warnings.append(origin.problem((), f"group name {name!r} holds characters other than letters, "
+        draft.warnings.append(origin.problem((), f"group name {shown(name)} holds characters other than letters, "
                                                  "digits, '_', '-' and '.': kept, as Ansible does, but patterns "
                                                  "and shells may read it differently; rename it",
                                              severity="warning"))
         return True
-    draft.problems.append(origin.problem((), f"invalid {what} name {name!r}: use letters, digits, "
+    draft.problems.append(origin.problem((), f"invalid {what} name {shown(name)}: use letters, digits, "
                                              "'_', '-' and '.' (other characters clash with patterns "
                                              "and shells)"))
     return False

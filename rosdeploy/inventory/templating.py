@@ -25,7 +25,7 @@ import jinja2
 
 from rosdeploy.sandbox import MAX_LENGTH, Sandbox
 
-from rosdeploy.errors import InventoryError, Problem
+from rosdeploy.errors import InventoryError, Problem, shown
 from rosdeploy.inventory.draft import Origin, strings
 from rosdeploy.yamlsrc import Unsafe
 
@@ -98,7 +98,7 @@ def secret_reads() -> Iterator[dict[str, str]]:
 def secret_read(var: str, source: str) -> str:
     """How a secret var was read, for messages: `vault var 'token'`, or `var 'p' (computed from
     vault var 'token')`."""
-    return f"vault var {var!r}" if var == source else f"var {var!r} (computed from vault var {source!r})"
+    return f"vault var {shown(var)}" if var == source else f"var {shown(var)} (computed from vault var {shown(source)})"
 
 
 def is_template(value: Any) -> bool:
@@ -169,7 +169,7 @@ class HostVars(Mapping[str, Any]):
             return self.value(key)
         except TemplateFailed as failed:
             origin = self._origins.get(failed.key) or self._origins[key]
-            problem = origin.problem((failed.key,), f"robot {self._name!r}: {failed.message}")
+            problem = origin.problem((failed.key,), f"robot {shown(self._name)}: {failed.message}")
             # Jinja raises exc(hint) where the value is used: UnresolvedVar takes the Problem itself
             return Unresolved(hint=problem, name=key, exc=UnresolvedVar)  # type: ignore[arg-type]
 
@@ -291,12 +291,12 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
     except TemplateFailed:
         raise
     except jinja2.TemplateError as exc:
-        raise TemplateFailed(key, f"cannot template {value!r}: {_reason(exc)}") from None
+        raise TemplateFailed(key, f"cannot template {shown(value)}: {_reason(exc)}") from None
     except RecursionError:
-        raise TemplateFailed(key, f"cannot template {value!r}: the templates refer to each other without end, "
+        raise TemplateFailed(key, f"cannot template {shown(value)}: the templates refer to each other without end, "
                                   "or nest too deeply", deep=True) from None
     except (TypeError, ValueError, ArithmeticError, LookupError, AttributeError) as exc:
-        raise TemplateFailed(key, f"cannot template {value!r}: {exc}") from None
+        raise TemplateFailed(key, f"cannot template {shown(value)}: {exc}") from None
 
 
 def _expression(expr: str, scope: _Scope) -> Any:

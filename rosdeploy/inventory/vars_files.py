@@ -6,7 +6,7 @@ import re
 from pathlib import Path
 
 from rosdeploy import suggest
-from rosdeploy.errors import Problem
+from rosdeploy.errors import Problem, shown
 from rosdeploy.inventory import discovery
 from rosdeploy.inventory.discovery import Reader, TooBig, is_dir, tally
 from rosdeploy.inventory.draft import Draft, Layer, make_layer
@@ -57,7 +57,7 @@ def _vars_files(folder: Path, draft: Draft) -> dict[str, Path]:
         chosen = f"{found[0]}{'/' if is_dir(found[0]) else ''}"
         for ignored in found[1:]:
             draft.warnings.append(Problem(str(ignored), None, "", f"ignored: {chosen} already holds the vars of "
-                                          f"{name!r}, and Ansible reads only the first of NAME, NAME.yml, "
+                                          f"{shown(name)}, and Ansible reads only the first of NAME, NAME.yml, "
                                           "NAME.yaml, NAME.json; merge them", severity="warning"))
         out[name] = found[0]
     return out
@@ -113,7 +113,7 @@ def _real(path: Path) -> str:
 
 def _read_vars_file(path: Path, reader: Reader, draft: Draft) -> Layer | None:
     if path.is_symlink() and not path.exists():
-        draft.problems.append(Problem(str(path), None, "", f"a symlink to {os.readlink(path)!r}, which does not "
+        draft.problems.append(Problem(str(path), None, "", f"a symlink to {shown(os.readlink(path))}, which does not "
                                       "exist: its vars would be lost; fix the link or remove it"))
         return None
     origin = reader.doc(path, draft.problems)
@@ -132,7 +132,7 @@ def _unknown_group_vars(path: Path, name: str, known: list[str], draft: Draft) -
     # host_vars are not judged at all: leftovers of retired robots are common and harmless.
     close = suggest.closest(name, known, cutoff=0.75)
     if close and re.sub(r"\d+", "#", close) != re.sub(r"\d+", "#", name):
-        draft.problems.append(Problem(str(path), None, "", f"no group named {name!r} in the inventory: "
-                                      f"did you mean {close!r}? rename the file or directory"))
+        draft.problems.append(Problem(str(path), None, "", f"no group named {shown(name)} in the inventory: "
+                                      f"did you mean {shown(close)}? rename the file or directory"))
 
 

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from rosdeploy.errors import shown
 from rosdeploy.inventory.draft import Draft, Origin, make_layer
 from rosdeploy.inventory.hostvars import CONSUMED_VARS
 from rosdeploy.inventory.known import GROUP_KEYS, did_you_mean_hint
@@ -55,7 +56,7 @@ def _yaml_group(origin: Origin, name: str, entry: Any, draft: Draft) -> bool:
     if not valid_name(name, origin, draft, "group"):
         return False
     draft.group(name, origin.where)
-    entry = _as_mapping(origin, entry, f"group {name!r} must be a mapping with hosts:, vars: and/or "
+    entry = _as_mapping(origin, entry, f"group {shown(name)} must be a mapping with hosts:, vars: and/or "
                                        "children:", draft)
     for key, value in entry.items():
         sub = origin.child(key)
@@ -66,7 +67,7 @@ def _yaml_group(origin: Origin, name: str, entry: Any, draft: Draft) -> bool:
         elif key == "children":
             _yaml_children(sub, name, value, draft)
         else:
-            draft.problems.append(sub.problem((), f"unknown key in group {name!r}: a group holds only "
+            draft.problems.append(sub.problem((), f"unknown key in group {shown(name)}: a group holds only "
                                                   f"hosts:, vars: and children:{_misplaced_hint(key)}"))
     return True
 
