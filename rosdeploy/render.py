@@ -33,6 +33,7 @@ from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
 from rosdeploy.inventory.templating import secret_read, secret_reads
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
 from rosdeploy.sandbox import (ContainedLoader, Layered, Sandbox, ShippedSandbox, describe, render_value,
+                               shipped_cache,
                                value_template)
 from rosdeploy.yamlsrc import Doc
 
@@ -317,7 +318,8 @@ def _builtin_environment() -> jinja2.Environment:
     Every value a user writes (fleet values, `files:`, an override folder) renders in the
     bounded sandbox (Renderer._environment)."""
     env = ShippedSandbox(plain_types=_VIEWS, loader=jinja2.FileSystemLoader(str(TEMPLATE_DIR)),
-                         trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True, auto_reload=False)
+                         trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True, auto_reload=False,
+                         bytecode_cache=shipped_cache())
     env.filters.update(FILTERS)
     return env
 

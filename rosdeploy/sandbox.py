@@ -36,6 +36,7 @@ from __future__ import annotations
 import collections.abc
 import itertools
 import importlib
+import os
 import re
 import string
 import threading
@@ -46,6 +47,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, MutableMapping, S
 
 import jinja2
 import jinja2.nodes
+from jinja2.bccache import Bucket
 from jinja2.compiler import CodeGenerator, Frame, operators, optimizeconst
 from jinja2.runtime import LoopContext
 from jinja2.sandbox import ImmutableSandboxedEnvironment, SandboxedEscapeFormatter, SandboxedFormatter, SecurityError
@@ -265,6 +267,43 @@ class ShippedSandbox(_PlainReads):
         kwargs.setdefault("undefined", jinja2.StrictUndefined)
         kwargs.setdefault("autoescape", False)
         super().__init__(**kwargs)
+
+
+class ShippedCache(jinja2.FileSystemBytecodeCache):
+    """rosdeploy's own templates, compiled once per version of their source and kept between
+    commands: compiling the six took ~22 ms of every command that renders. Only ShippedSandbox
+    uses it. Sandbox compiles with its own code generator (the bounds), and code compiled for one
+    must never run in the other. A damaged entry is compiled again; a cache that cannot be
+    written is no cache, never an error."""
+
+    def load_bytecode(self, bucket: Bucket) -> None:
+        try:
+            super().load_bytecode(bucket)
+        except Exception:     # noqa: BLE001 - a damaged or truncated entry: compile again
+            bucket.reset()
+
+    def dump_bytecode(self, bucket: Bucket) -> None:
+        try:
+            super().dump_bytecode(bucket)
+        except OSError:
+            pass
+
+
+def shipped_cache() -> ShippedCache | None:
+    """The cache in ~/.cache/rosdeploy/templates ($XDG_CACHE_HOME), or None where that folder
+    cannot be made, or is not this user's alone: its entries are code this process will run."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    folder = os.path.join(base, "rosdeploy", "templates")
+    if not os.path.isabs(folder):          # no HOME: not a folder relative to wherever this runs
+        return None
+    try:
+        os.makedirs(folder, mode=0o700, exist_ok=True)
+        info = os.stat(folder)
+    except OSError:
+        return None
+    if info.st_uid != os.getuid() or info.st_mode & 0o077:
+        return None
+    return ShippedCache(folder)
 
 
 class Sandbox(_PlainReads):
