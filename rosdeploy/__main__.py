@@ -1,3 +1,3 @@
-from rosdeploy.cli import main
+from rosdeploy.cli import run
 
-raise SystemExit(main())
+run()
