@@ -8,7 +8,10 @@
    (`--scenarios` selects some). Tools: rosdeploy, rosdeploy-at-once (the same fleet file
    with `--waves 100%`: the demo deploys a canary robot first, minimal.yml every robot at
    once), Ansible with the equal-work playbook (bench/ansible/deploy.yml) and with the
-   minimal one (bench/ansible/minimal.yml).
+   minimal one (bench/ansible/minimal.yml), and `floor`: no tool at all (as root inside
+   every robot at once: pull, stop, create, parallel start, verdict files polled; see
+   fleetbench.scenarios.floor_steps), the lower bound of any tool on these robots, and
+   `floor-ordered`: the same, starting the services in depends_on order.
 2. Fan-out: N host sshd targets on 127.0.0.1:3001... (their docker is the host's
    engine); `rosdeploy status`, no-op `rosdeploy apply` and Ansible's no-op run.
 Prints the table of medians, checks the targets, writes bench/results/fleet-<date>.json
@@ -59,7 +62,9 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--skip-fleet", action="store_true", help="only the fan-out part")
     p.add_argument("--tools", default="rosdeploy,ansible,ansible-minimal",
                    help="which tools' rounds to run on the sim fleet (ansible: the equal-work playbook "
-                        "bench/ansible/deploy.yml; ansible-minimal: bench/ansible/minimal.yml)")
+                        "bench/ansible/deploy.yml; ansible-minimal: bench/ansible/minimal.yml; floor: no tool, "
+                        "the switch done by hand inside every robot at once; floor-ordered: the same, "
+                        "starting the services in depends_on order)")
     p.add_argument("--scenarios", default=",".join(SCENARIOS),
                    help="which sim fleet scenarios to measure, e.g. noop,upgrade (the ones before the last "
                         "selected still run, untimed, to bring the robots there). A selection writes "
@@ -130,7 +135,8 @@ def sim_bench(args: argparse.Namespace, raw: dict[str, Any], work: Path, playboo
     return SimBench(fleet=args.fleet, inventory=fleet.inventory, robots=tuple(r.name for r in robots),
                     project=spec.project, services=tuple(services),
                     registry_robot=fleet.registry_robot, runner=ans.Ansible(playbook, inventory, work),
-                    extra=extra, env={"ROSDEPLOY_RUNS_DIR": str(work / "runs")},
+                    extra=extra, env={"ROSDEPLOY_RUNS_DIR": str(work / "runs")}, render_dir=render_dir,
+                    deploy_root=root,
                     ssh=tuple(ssh_argv(r.host, r.ssh_port, fleet.key_file, fleet.known_hosts) for r in robots))
 
 
@@ -290,7 +296,8 @@ def kept_rounds(path: Path, rounds: dict[str, list[dict[str, Measure]]], load: t
 
 def with_goals(results: dict[str, Any]) -> dict[str, Any]:
     goals = report.goals(results.get("fleet", {}), results.get("fanout", {}))
-    return {**results, "goals": [{**g.__dict__, "met": g.met} for g in goals]}
+    return {**results, "goals": [{**g.__dict__, "met": g.met} for g in goals],
+            "issue19": report.issue19(results.get("fleet", {}))}
 
 
 def publish(results: dict[str, Any], write: bool, suffix: str = "") -> None:
@@ -300,11 +307,18 @@ def publish(results: dict[str, Any], write: bool, suffix: str = "") -> None:
     print()
     for line in report.goal_lines(results):
         print(line)
+    issue19 = report.issue19_lines(results)
+    if issue19:
+        print("\nissue #19, time over the minimal playbook's (lower is better):")
+        for line in issue19:
+            print(line)
     if results.get("fanout"):
         print("\nfan-out, controller CPU seconds (median):\n"
               + report.text_table(report.fanout_cpu_rows(results), report.CPU_HEADER))
     if results.get("fleet"):
         print("\nrosdeploy, median seconds per robot and step:\n" + report.steps_table(results))
+    if any(e.get("floor_steps") or e.get("floor_ordered_steps") for e in results.get("fleet", {}).values()):
+        print("\nfloors (no tool), median seconds per robot and phase:\n" + report.floor_steps_table(results))
     if write:
         path = report.save_json(results, RESULTS_DIR, suffix)
         if not suffix:

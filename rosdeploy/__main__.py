@@ -1,3 +1,3 @@
-from rosdeploy.cli import run
+from rosdeploy.cli import main
 
-run()
+raise SystemExit(main())

@@ -12,7 +12,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from fleetbench.scenarios import SCENARIOS, SSH_FLOOR, TITLES, Measure
+from fleetbench.scenarios import FLOOR, FLOOR_ORDERED, SCENARIOS, SSH_FLOOR, TITLES, Measure
 
 BEGIN, END = "<!-- fleet_bench:begin -->", "<!-- fleet_bench:end -->"
 
@@ -83,6 +83,9 @@ def fleet_section(rounds: Mapping[str, Sequence[Mapping[str, Measure]]]) -> dict
         theirs = [r[scenario] for r in rounds.get("ansible", ())]
         minimal = [r[scenario] for r in rounds.get("ansible-minimal", ())]
         at_once = [r[scenario] for r in rounds.get("rosdeploy-at-once", ())]
+        floor = [r[scenario] for r in rounds.get(FLOOR, ()) if scenario in r]     # none for the bad release
+        ordered = [r[scenario] for r in rounds.get(FLOOR_ORDERED, ()) if scenario in r]
+        entry: dict[str, Any]
         entry = {"title": TITLES[scenario],
                  "rosdeploy": [round(m.seconds, 3) for m in ours], "ansible": [round(m.seconds, 3) for m in theirs],
                  "ansible_minimal": [round(m.seconds, 3) for m in minimal],
@@ -90,12 +93,16 @@ def fleet_section(rounds: Mapping[str, Sequence[Mapping[str, Measure]]]) -> dict
                  "rosdeploy_at_once_median": _r(median(m.seconds for m in at_once)),
                  "rosdeploy_median": _r(median(m.seconds for m in ours)),
                  "ansible_median": _r(median(m.seconds for m in theirs)),
-                 "ansible_minimal_median": _r(median(m.seconds for m in minimal))}
+                 "ansible_minimal_median": _r(median(m.seconds for m in minimal)),
+                 "floor": [round(m.seconds, 3) for m in floor],
+                 "floor_median": _r(median(m.seconds for m in floor)),
+                 "floor_ordered": [round(m.seconds, 3) for m in ordered],
+                 "floor_ordered_median": _r(median(m.seconds for m in ordered))}
         entry["speedup"] = _r(speedup(entry["rosdeploy_median"], entry["ansible_median"]), 2)
-        floor = [r[scenario] for r in rounds.get(SSH_FLOOR, ()) if scenario in r]
-        if floor and entry["rosdeploy_median"] is not None:
-            entry["ssh_floor"] = [round(m.seconds, 3) for m in floor]
-            entry["ssh_floor_median"] = _r(median(m.seconds for m in floor))
+        ssh_floor = [r[scenario] for r in rounds.get(SSH_FLOOR, ()) if scenario in r]
+        if ssh_floor and entry["rosdeploy_median"] is not None:
+            entry["ssh_floor"] = [round(m.seconds, 3) for m in ssh_floor]
+            entry["ssh_floor_median"] = _r(median(m.seconds for m in ssh_floor))
             entry["above_ssh_floor"] = _r(entry["rosdeploy_median"] - entry["ssh_floor_median"])
         # Issue #19 states its targets as rosdeploy's time over the minimal playbook's.
         entry["ratio_minimal"] = _r(speedup(entry["ansible_minimal_median"], entry["rosdeploy_median"]), 2)
@@ -103,6 +110,14 @@ def fleet_section(rounds: Mapping[str, Sequence[Mapping[str, Measure]]]) -> dict
         # The same shape as minimal.yml: every robot at once (the demo fleet deploys a canary first).
         entry["ratio_minimal_at_once"] = _r(speedup(entry["ansible_minimal_median"],
                                                     entry["rosdeploy_at_once_median"]), 2)
+        # No tool at all (tool `floor`): what is left of the ratio when a tool costs nothing.
+        entry["ratio_floor_minimal"] = _r(speedup(entry["ansible_minimal_median"], entry["floor_median"]), 2)
+        entry["floor_steps"] = step_medians(floor)      # per robot: pull, stop, create, start, healthy
+        entry["floor_inside"] = _r(median(m.wall_inside for m in floor if m.wall_inside is not None))
+        entry["ratio_floor_ordered_minimal"] = _r(speedup(entry["ansible_minimal_median"],
+                                                          entry["floor_ordered_median"]), 2)
+        entry["floor_ordered_steps"] = step_medians(ordered)
+        entry["floor_ordered_inside"] = _r(median(m.wall_inside for m in ordered if m.wall_inside is not None))
         entry["rosdeploy_at_once_steps"] = step_medians(at_once)
         entry["rosdeploy_steps"] = step_medians(ours)
         entry["rosdeploy_overhead"] = _r(overhead(ours))
@@ -137,6 +152,48 @@ def goals(fleet: Mapping[str, Any], fanout: Mapping[str, Any]) -> list[Goal]:
     ]
 
 
+# Issue #19: a tool's time over the minimal playbook's (bench/ansible/minimal.yml), at most this.
+ISSUE19_TARGETS = {"first_deploy": 0.4, "noop": 0.05, "upgrade": 0.35, "bad_release": 0.6, "rollback": 0.25}
+
+
+def issue19(fleet: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Per measured scenario: the target and the ratios over the minimal playbook of
+    rosdeploy (canary first), rosdeploy at once and the floor (no tool). A floor above the
+    target means no tool reaches it on this machine; below, a tool could."""
+    out = []
+    for scenario, entry in fleet.items():
+        if scenario not in ISSUE19_TARGETS or entry.get("ansible_minimal_median") is None:
+            continue
+        out.append({"scenario": scenario, "target": ISSUE19_TARGETS[scenario],
+                    "rosdeploy": entry.get("ratio_minimal"), "rosdeploy_at_once": entry.get("ratio_minimal_at_once"),
+                    "floor": entry.get("ratio_floor_minimal"),
+                    "floor_ordered": entry.get("ratio_floor_ordered_minimal")})
+    return out
+
+
+def issue19_lines(results: Mapping[str, Any]) -> list[str]:
+    out = []
+    for row in results.get("issue19") or issue19(results.get("fleet", {})):
+        target = row["target"]
+        shown = [f"{label} {_f(row[key])}" + ("" if row[key] is None else
+                                               " (met)" if row[key] <= target else " (missed)")
+                 for key, label in (("rosdeploy", "rosdeploy"), ("rosdeploy_at_once", "at once"),
+                                    ("floor", "floor, no tool"), ("floor_ordered", "floor in depends_on order"))
+                 if row.get(key) is not None]
+        if not shown:
+            continue
+        line = f"{TITLES[row['scenario']]} ÷ minimal ≤ {target:.2f}: " + ", ".join(shown)
+        if row["floor"] is not None:
+            line += (" → the floor is above the target: no tool reaches it here" if row["floor"] > target
+                     else " → the floor is below the target: a tool that ignores depends_on could reach it")
+        if row.get("floor_ordered") is not None:
+            line += ("; in depends_on order above it: no tool that keeps the order reaches it here"
+                     if row["floor_ordered"] > target else
+                     "; in depends_on order below it: a tool that keeps the order could reach it")
+        out.append(line)
+    return out
+
+
 def machine() -> dict[str, Any]:
     cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
                 if line.startswith("model name")), platform.processor() or "unknown")
@@ -166,22 +223,24 @@ def _r(value: float | None, digits: int = 3) -> float | None:
 # ------------------------------------------------------------------- table
 
 def table_rows(results: Mapping[str, Any]) -> list[tuple[str, ...]]:
-    rows = []
+    rows: list[tuple[str, ...]] = []
     robots = results["config"]["robots"]
     for entry in results.get("fleet", {}).values():
         rows.append((f"{entry['title']} ({robots} robots)", _s(entry["rosdeploy_median"]),
                      _s(entry["ansible_median"]), _x(entry["speedup"]),
                      _s(entry.get("ansible_minimal_median")), _f(entry.get("ratio_minimal")),
-                     _s(entry.get("rosdeploy_at_once_median")), _f(entry.get("ratio_minimal_at_once"))))
+                     _s(entry.get("rosdeploy_at_once_median")), _f(entry.get("ratio_minimal_at_once")),
+                     _s(entry.get("floor_median")), _f(entry.get("ratio_floor_minimal")),
+                     _s(entry.get("floor_ordered_median")), _f(entry.get("ratio_floor_ordered_minimal"))))
     fan = results.get("fanout", {})
     for n in fan.get("sizes", []):
         first, status = _get(fan, "status_first", n), _get(fan, "status", n)
         ours, theirs = _get(fan, "rosdeploy_noop", n), _get(fan, "ansible_noop", n)
-        rows.append((f"fan-out: status, {n} targets, connecting", _s(first.get("median")), "—", "", "", "", "", ""))
-        rows.append((f"fan-out: status, {n} targets, connections held", _s(status.get("median")), "—", "", "", "",
-                     "", ""))
+        blank = ("",) * (len(HEADER) - 4)
+        rows.append((f"fan-out: status, {n} targets, connecting", _s(first.get("median")), "—", "", *blank))
+        rows.append((f"fan-out: status, {n} targets, connections held", _s(status.get("median")), "—", "", *blank))
         rows.append((f"fan-out: no-op apply, {n} targets", _s(ours.get("median")), _s(theirs.get("median")),
-                     _x(speedup(ours.get("median"), theirs.get("median"))), "", "", "", ""))
+                     _x(speedup(ours.get("median"), theirs.get("median"))), *blank))
     return rows
 
 
@@ -227,7 +286,8 @@ def markdown_table(rows: Sequence[tuple[str, ...]], header: Sequence[str]) -> st
 
 HEADER = ("scenario", "rosdeploy (median)", "Ansible, equal work (median)", "speedup",
           "Ansible, minimal (median)", "rosdeploy ÷ minimal", "rosdeploy, all robots at once (median)",
-          "at once ÷ minimal")
+          "at once ÷ minimal", "floor, no tool (median)", "floor ÷ minimal",
+          "floor, depends_on order (median)", "ordered floor ÷ minimal")
 
 
 def goal_lines(results: Mapping[str, Any]) -> list[str]:
@@ -249,6 +309,20 @@ def steps_table(results: Mapping[str, Any]) -> str:
              *(f"{e['rosdeploy_steps'][n]:.2f}" if n in e["rosdeploy_steps"] else "" for n in names))
             for s, e in fleet.items()]
     return markdown_table(rows, ("scenario", "process + load + render", *names))
+
+
+def floor_steps_table(results: Mapping[str, Any]) -> str:
+    """The floors' phases, median seconds per robot from the robots' own clocks, and the
+    slowest robot's total (the fleet wall time less the `docker exec` round trips)."""
+    rows_in = [(f"{TITLES[s]}{label}", e[f"{key}_steps"], e.get(f"{key}_inside"), e.get(f"{key}_median"))
+               for s, e in results.get("fleet", {}).items()
+               for key, label in (("floor", ""), ("floor_ordered", ", depends_on order")) if e.get(f"{key}_steps")]
+    names: list[str] = []
+    for _, steps, _, _ in rows_in:
+        names += [n for n in steps if n not in names]
+    rows = [(title, *(f"{steps[n]:.2f}" if n in steps else "" for n in names), _s(inside), _s(wall))
+            for title, steps, inside, wall in rows_in]
+    return markdown_table(rows, ("scenario", *names, "slowest robot, inside", "fleet, wall"))
 
 
 # ------------------------------------------------------------------ output
@@ -300,6 +374,9 @@ def docs_block(results: Mapping[str, Any], json_path: str) -> str:
         *(f"- {line}" for line in goal_lines(results)),
         "",
     ]
+    if issue19_lines(results):
+        parts += ["Issue #19 (a tool's time over the minimal playbook's; the floor is no tool at all):", "",
+                  *(f"- {line}" for line in issue19_lines(results)), ""]
     if results.get("fanout"):
         parts += ["Fan-out, controller CPU (median user+sys seconds of the command and its children, and for "
                   "`status` the connection keeper's share: what stays on the operator's machine when every "
@@ -308,6 +385,9 @@ def docs_block(results: Mapping[str, Any], json_path: str) -> str:
     if results.get("fleet"):
         parts += ["Where rosdeploy's time goes (median seconds per robot, from `--json` step timings):", "",
                   steps_table(results), ""]
+    if any(e.get("floor_steps") or e.get("floor_ordered_steps") for e in results.get("fleet", {}).values()):
+        parts += ["Where the floor's time goes (median seconds per robot, from the robots' clocks):", "",
+                  floor_steps_table(results), ""]
     if results.get("fanout_error"):
         parts += [f"The fan-out part stopped early: {results['fanout_error'].splitlines()[0]}", ""]
     if results.get("discarded_rounds"):

@@ -8,12 +8,9 @@ imports no SSH or crypto module: the handlers import what their command needs, s
 from __future__ import annotations
 
 import argparse
-import atexit
-import os
 import sys
-import threading
 import traceback
-from typing import Any, NoReturn, Sequence
+from typing import Any, Sequence
 
 from rosdeploy import __version__
 from rosdeploy.cli.common import EXIT_CODES, Parser, UsageError, add_command
@@ -62,23 +59,6 @@ def cmd_version(args: argparse.Namespace, out: Output) -> int:
     else:
         out.line(f"rosdeploy {__version__}")
     return EXIT_OK
-
-
-def run() -> NoReturn:
-    """The `rosdeploy` command (and `python -m rosdeploy`): main(), then exit.
-
-    Where nothing is left to run at exit (one thread, no atexit handler), the process ends without
-    tearing down its heap: freeing the objects a 5,000-robot fleet loads, one by one, only to exit
-    took ~0.1 s. main() stays a plain function for callers in this process (the tests)."""
-    code = main()
-    try:
-        sys.stdout.flush()
-        sys.stderr.flush()
-    except (BrokenPipeError, ValueError):      # the reader left, or main() closed the stream
-        pass
-    if threading.active_count() == 1 and atexit._ncallbacks() == 0:
-        os._exit(code)
-    sys.exit(code)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

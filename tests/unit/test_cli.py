@@ -566,27 +566,3 @@ def test_every_rosdeploy_command_in_the_readme_parses() -> None:
         words = shlex.split(command.split(">")[0].split("|")[0])
         build_parser().parse_args(words[1:])      # a UsageError fails the test with the command's problem
 
-
-# ---------------------------------------------- the process ends without tearing down its heap
-
-def test_the_command_writes_everything_then_exits_with_mains_code(tmp_path: Path) -> None:
-    """cli.run() ends the process with os._exit (no heap teardown) after flushing: what a pipe
-    reads must still be whole, and the exit code main()'s."""
-    done = rosdeploy("--json", "render", *lab_args(tmp_path), "--out", str(tmp_path / "out"))
-    assert done.returncode == 0, done.stderr
-    robots = json.loads(done.stdout)["robots"]
-    assert robots and sorted(r["robot"] for r in robots) == sorted(p.name for p in (tmp_path / "out").iterdir())
-    refused = rosdeploy("validate", str(tmp_path / "missing.yml"))
-    assert refused.returncode == EXIT_INPUT and "missing.yml" in refused.stderr
-
-
-def test_with_an_exit_handler_registered_the_process_exits_the_normal_way(tmp_path: Path) -> None:
-    """A handler registered with atexit (a library's clean-up) must still run."""
-    marker = tmp_path / "ran"
-    code = ("import atexit, sys; from pathlib import Path; "
-            f"atexit.register(lambda: Path({str(marker)!r}).write_text('yes')); "
-            "sys.argv = ['rosdeploy', 'version']; from rosdeploy.cli import run; run()")
-    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=_env(), text=True, capture_output=True,
-                          timeout=60)
-    assert done.returncode == 0 and done.stdout.startswith("rosdeploy ")
-    assert marker.read_text() == "yes"
