@@ -423,8 +423,7 @@ def _size(r: Reader, kp: KeyPath, value: Any) -> Any:
     except ValueError:
         too_big = True
     if too_big:
-        head = value if len(value) <= 20 else value[:17] + "..."
-        raise Invalid(f"{head!r} is more than {MAX_SIZE_BYTES >> 30}g: no robot has that much memory "
+        raise Invalid(f"{shown(value, 20)} is more than {MAX_SIZE_BYTES >> 30}g: no robot has that much memory "
                       "or log space; give a size like 512m or 1g")
     return value.strip().lower()
 

@@ -188,7 +188,7 @@ def _refuse_huge_index(terms: list[str], where: str) -> None:
         found = _SUBSCRIPT.match(term) if not term.lstrip("&!").startswith("~") else None
         digits = [found[k] for k in ("index", "start", "end") if found and found[k]]
         if any(len(d.lstrip("-0")) > MAX_INDEX_DIGITS for d in digits):
-            raise _error(where, f"subscript in {term[:60]!r}{'...' if len(term) > 60 else ''} is past any "
+            raise _error(where, f"subscript in {shown(term, 60)} is past any "
                                 f"inventory (more than {MAX_INDEX_DIGITS} digits): give a host position "
                                 "in the group, e.g. 'site_north[0:9]'")
 

@@ -81,9 +81,9 @@ def host_fields(name: str, read: Callable[[str], Any], origins: Mapping[str, Ori
 
 
 def _foreign(host: str, var: str, value: Any, spec: Var, origin: Origin) -> Problem:
-    head = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
-    return origin.problem((var,), f"robot {shown(host)}: {var} is {head}, not rosdeploy's {spec.what}: another tool's "
-                                  f"variable, ignored by rosdeploy; give rosdeploy its own as {PREFIX}{var}",
+    return origin.problem((var,), f"robot {shown(host)}: {var} is {shown(value, 60)}, not rosdeploy's {spec.what}: "
+                                  f"another tool's variable, ignored by rosdeploy; give rosdeploy its own as "
+                                  f"{PREFIX}{var}",
                           severity="warning")
 
 
