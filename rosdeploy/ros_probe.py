@@ -9,6 +9,7 @@ exit. Prints one JSON line; exit 0 = healthy.
 """
 import importlib
 import json
+import math
 import os
 import sys
 import time
@@ -25,40 +26,78 @@ def _message_class(type_name):
     return getattr(importlib.import_module(package + ".msg"), name)
 
 
-def _discover(node, rclpy, wanted, deadline, published=False):
-    """Topic -> types once every wanted topic is on the graph (or the deadline, a monotonic
-    time). `published`: only topics with a publisher count (a subscriber, e.g. an image's
-    health watcher, puts a topic on the graph too)."""
+def _discover(node, rclpy, wanted, deadline):
+    """Topic -> types once every wanted topic is on the graph (or the deadline, a monotonic time)."""
     deadline = max(deadline, time.monotonic() + AFTER_INIT_AT_LEAST)
     found = {}
     while time.monotonic() < deadline:
         found = dict(node.get_topic_names_and_types())
-        if published:
-            found = {n: t for n, t in found.items() if n not in wanted or node.count_publishers(n) > 0}
         if wanted <= set(found):
             break
         rclpy.spin_once(node, timeout_sec=0.1)
     return found
 
 
-def _measure(node, rclpy, topics, found, window):
-    """topics: name -> min_rate. Listens up to `window` seconds, less once every topic
-    has sent more than min_rate * window messages: the count only grows, so the full
-    window could not end below min_rate any more."""
-    from rclpy.qos import qos_profile_sensor_data  # best effort: matches reliable and best-effort publishers
+class _Listener:
+    """Each rated topic measured from the moment its publisher is seen, not once the last
+    topic appears: a later start level's topic does not hold up the rates of the first's.
 
-    stamps = {name: [] for name in topics}
-    enough = {name: int(rate * window) + 2 for name, rate in topics.items()}
-    subs = [node.create_subscription(_message_class(found[name][0]), name,
-                                     lambda _msg, n=name: stamps[n].append(time.monotonic()),
-                                     qos_profile_sensor_data)
-            for name in topics]
-    deadline = time.monotonic() + window
-    while time.monotonic() < deadline and any(len(stamps[n]) < enough[n] for n in topics):
-        rclpy.spin_once(node, timeout_sec=0.05)
-    for sub in subs:
-        node.destroy_subscription(sub)
-    return {name: _rate(times) for name, times in stamps.items()}
+    A topic listens up to `window` s from its first message (a new subscription takes a
+    moment to match its publisher: counted from the subscription, that moment would be
+    missing from the window), less once it has sent more than min_rate * window messages:
+    the count only grows, so the full window could not end below min_rate. No message
+    within `window` s of subscribing: its rate is 0."""
+
+    def __init__(self, node, topics, window, published):
+        self.node, self.topics, self.window, self.published = node, topics, window, published
+        self.found, self.stamps, self.since, self.subs = {}, {}, {}, []
+        self.enough = {name: math.ceil(rate * window) + 1 for name, rate in topics.items() if rate}
+
+    def look(self, now):
+        graph = dict(self.node.get_topic_names_and_types())
+        for name in set(self.topics) - set(self.found):
+            if name in graph and (not self.published or self.node.count_publishers(name) > 0):
+                self.found[name] = graph[name]
+                if name in self.enough and self.window > 0:
+                    self._listen(name, graph[name][0], now)
+
+    def _listen(self, name, type_name, now):
+        from rclpy.qos import qos_profile_sensor_data  # best effort: matches reliable and best-effort publishers
+
+        self.stamps[name], self.since[name] = [], now
+        self.subs.append(self.node.create_subscription(
+            _message_class(type_name), name, lambda _msg, n=name: self.stamps[n].append(time.monotonic()),
+            qos_profile_sensor_data))
+
+    def measured(self, now):
+        return all(len(got) >= self.enough[n] or now >= (got[0] if got else self.since[n]) + self.window
+                   for n, got in self.stamps.items())
+
+    def close(self):
+        for sub in self.subs:
+            self.node.destroy_subscription(sub)
+        return {name: _rate(times) for name, times in self.stamps.items()}
+
+
+def _listen(node, rclpy, topics, deadline, window, published):
+    """(topic -> types of what was found, topic -> rate). Ends once every topic was found
+    and measured; or at the discovery deadline (a monotonic time) with topics still
+    missing, once those found are measured."""
+    deadline = max(deadline, time.monotonic() + AFTER_INIT_AT_LEAST)
+    listener = _Listener(node, topics, window, published)
+    next_look = 0.0
+    try:
+        while True:
+            now = time.monotonic()
+            if now >= next_look and len(listener.found) < len(topics):
+                listener.look(now)
+                next_look = now + 0.1        # a graph query per message would cost a fast topic's CPU
+            if listener.measured(now) and (len(listener.found) == len(topics) or now >= deadline):
+                break
+            rclpy.spin_once(node, timeout_sec=0.05)
+    finally:
+        rates = listener.close()
+    return listener.found, rates
 
 
 def _rate(times):
@@ -74,10 +113,8 @@ def probe(spec):
     node = rclpy.create_node("rosdeploy_probe_%d" % os.getpid())
     try:
         topics = {t["name"]: t.get("min_rate") for t in spec["topics"]}
-        found = _discover(node, rclpy, set(topics), ASKED + spec.get("discovery_timeout", 10.0),
-                          spec.get("published", False))
-        rated = {n: r for n, r in topics.items() if r and n in found}
-        rates = _measure(node, rclpy, rated, found, spec.get("window", 3.0)) if rated else {}
+        found, rates = _listen(node, rclpy, topics, ASKED + spec.get("discovery_timeout", 10.0),
+                               spec.get("window", 3.0), spec.get("published", False))
     finally:
         node.destroy_node()
         rclpy.shutdown()
