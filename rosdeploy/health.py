@@ -5,15 +5,14 @@ running, healthy where the image or compose declares a check (Docker's verdict, 
 the check itself run by rosdeploy while Docker still says `starting`), no restarts.
 Then, once, the ROS graph: rosdeploy's probe runs inside a container of the release and
 checks each expected topic and its rate. The probe costs ~0.4 CPU-s, so it runs once per
-gate (plus one retry), never in a polling loop. It starts as soon as its container runs,
-during the earlier start levels' waits, so its discovery overlaps the later levels' starts.
+gate (plus one retry), never in a polling loop.
 """
 from __future__ import annotations
 
 import json
 import threading
 import time
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping, TypeVar
@@ -29,8 +28,11 @@ OWN_TEST_EVERY = 1.0  # s between one-shot runs of a container's own health test
 WATCH_EVERY = 0.25    # s between tries of a watched test (inside the container)
 WATCH_WINDOW = 10.0   # s one watch loops before it ends and the next poll starts another
 FAST_WINDOW = 15.0   # s after a start during which the gate polls fast
-# s the gate's probe listens for topics at least, however late it begins: its own DDS
-# participant needs a moment to discover publishers that are there
+# s a new release's services may stay `starting` before the ROS probe looks for their topics
+# (a good demo node passes its own check in ~2.5 s here, so a healthy start costs no probe)
+EARLY_LOOK_AFTER = 3.0
+# s the early look listens at least, however late it begins: the probe's own DDS participant
+# needs a moment to discover publishers that are there
 LOOK_AT_LEAST = 2.0
 T = TypeVar("T")
 PROBE_SOURCE = (Path(__file__).parent / "ros_probe.py").read_text(encoding="utf-8")
@@ -122,11 +124,8 @@ class Poller:
         self.unwatchable: set[str] = set()     # container ids tested one exec at a time
         self.woken = threading.Event()         # a watch ended: poll now, not at the next tick
         self.fresh: tuple[Container, ...] | None = None   # read by `up` just now: the next poll
+        self.look: Future[Verdict] | None = None   # the early presence probe (look_for_topics)
         self.started_at: float | None = None       # when the last `up` returned (its containers started)
-        self.gate: Future[Verdict] | None = None   # the gate's ROS probe (start_probe)
-        self.gate_early = False                    # ... began before every service was healthy
-        self.gate_ran: set[str] = set()            # ... services running when it began
-        self.probed = 0                            # gate probes started
 
     def seed(self, containers: tuple[Container, ...] | None) -> None:
         """Containers `up` listed after starting them: the next poll takes them instead of
@@ -195,21 +194,44 @@ class Poller:
         return False
 
 
-    def start_probe(self, containers: tuple[Container, ...], policy: HealthPolicy, deadline: float,
-                    early: bool) -> None:
-        """The gate's ROS probe, in the background (it wakes the gate when it ends). A topic
-        may take `health.topics_within` after the last `up` before it: that is what the
-        first probe waits for, not a fresh wait from now. A second one (the first was too
-        early) judges services that are all healthy: it gets the whole wait, as a fresh
-        participant on a loaded robot may need it."""
-        self.gate_ran = {c.service for c in containers if c.status == "running"}
-        self.gate_early = early
-        within = policy.topics_within
-        if self.started_at is not None and not self.probed:
-            within = max(within - (time.monotonic() - self.started_at), LOOK_AT_LEAST)
-        self.probed += 1
-        timed = replace(policy, topics_within=within)
-        self.gate = _in_background(lambda: _probe_graph(self.t, self.spec, containers, timed, deadline), self.woken)
+    def look_for_topics(self, containers: tuple[Container, ...], waiting: Mapping[str, str],
+                        since: float, deadline: float) -> Verdict | None:
+        """A new release still `starting` EARLY_LOOK_AFTER s after its start: one presence-only
+        probe (no rates) for the topics of the services already running. A topic still missing
+        `health.topics_within` after its container started (the last `up`, which started it or
+        a later level), while its container ran, fails the gate there: Docker's own verdict
+        would come only after the image's start period and retries (~20 s for the demo's silent
+        1.2.0-bad). One look per start; a failure it cannot pin is left to Docker."""
+        if self.look is None:
+            now = time.monotonic()
+            if waiting and now - since >= EARLY_LOOK_AFTER:
+                running = {c.service for c in containers if c.status == "running"}
+                # the look begins late on purpose (a healthy start needs none): what it listens
+                # is what is left of topics_within, counted from the start, not a fresh wait
+                left = self.spec.health.topics_within - (now - (self.started_at or since))
+                self.look = _start_look(self.t, self.spec, containers, running, deadline, self.woken,
+                                        max(left, LOOK_AT_LEAST))
+            return None
+        if not self.look.done() or self.look.exception() is not None:
+            return None
+        verdict = self.look.result()
+        return None if verdict.ok or not missing_topics(verdict) else verdict
+
+
+def _start_look(t: Transport, spec: FleetSpec, containers: tuple[Container, ...], running: set[str],
+                deadline: float, done: threading.Event, within: float) -> Future[Verdict]:
+    topics = [{"name": topic.name, "min_rate": None} for s in spec.services
+              if s.name in running and not s.profiles for topic in s.topics]
+    if not topics or probe_service(spec) not in running:
+        return _finished(Verdict(True, "nothing to look for yet"))
+    policy = replace(spec.health, topic_window=0.0, topics_within=within)
+    return _in_background(lambda: _probe_graph(t, spec, containers, policy, deadline, topics), done)
+
+
+def _finished(verdict: Verdict) -> Future[Verdict]:
+    future: Future[Verdict] = Future()
+    future.set_result(verdict)
+    return future
 
 
 def missing_topics(verdict: Verdict) -> list[str]:
@@ -255,19 +277,19 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
     release was started, the gate decides whether it stays or is rolled back.
 
     `since`: when the release began to start (the stable window and health.timeout count
-    from there). The ROS probe starts in the background as soon as the probe container
-    runs, even in a level wait, so its discovery wait overlaps the rest. It runs at most
+    from there). The ROS probe starts as soon as the probe container runs, in parallel
+    with waiting for health, so its discovery wait overlaps the rest. It runs at most
     twice per gate (a second time only if the first ran before the services were healthy).
-    The probe lives on the poller, which the waits of one start share.
 
     `checks_only`: wait only for running containers that pass their own health checks,
-    with no stable window and no ROS verdict (those guard a new release as a whole). For a
+    with no stable window and no ROS probe (those guard a new release as a whole). For a
     start level before the next one (what `service_healthy` means), and for the brake:
     going back to a release that passed the whole gate before on this robot.
     `services`: only these (default: every expected service).
-    `fail_fast` (a new release, its level waits included): a declared topic that never
-    appears on the ROS graph while its container runs fails the gate when the probe's
-    discovery wait ends, not when Docker gives up on the container.
+    `fail_fast` (a new release): a declared topic that never appears on the ROS graph while
+    its container runs fails the gate when the probe's discovery wait ends, not when Docker
+    gives up on the container (see Poller.look_for_topics; the probe of the gate itself
+    counts the same way for the services that ran when it began).
     """
     policy = policy or spec.health
     if checks_only:
@@ -276,31 +298,38 @@ def wait_healthy(t: Transport, spec: FleetSpec, policy: HealthPolicy | None = No
     start = time.monotonic() if since is None else since
     deadline = start + policy.timeout if deadline is None else deadline
     poller = poller or Poller(t, spec, watch=True)
-    probing = fail_fast or not checks_only    # the brake has no ROS verdict to wait for
-    while True:
-        containers, failure = poller.poll(expected)
-        if failure:
-            return Verdict(False, failure[1], failure[0], containers=containers)
-        waiting = unhealthy_services(containers, expected)
-        if probing and poller.gate is None and _probe_can_start(spec, containers):
-            poller.start_probe(containers, policy, deadline, early=checks_only or bool(waiting))
-        missing = _missing_early(poller.gate, poller.gate_ran, spec) if fail_fast else None
-        if missing is not None:   # the second probe's own words: it had a wait of its own
-            why = _never_appeared(missing, waiting, policy.topics_within) if poller.probed == 1 else missing.reason
-            return replace(missing, reason=why, containers=containers)
-        if not waiting and time.monotonic() - start >= policy.stable:
-            if checks_only:
-                return Verdict(True, "running and passing health checks", containers=containers)
-            verdict = poller.gate.result() if poller.gate else _probe_graph(t, spec, containers, policy, deadline)
-            if verdict.ok or not poller.gate_early or time.monotonic() + policy.interval >= deadline:
-                return replace(verdict, containers=containers)
-            poller.gate = None   # probed too early: once more, now that all are healthy
-            continue
-        if time.monotonic() >= deadline:
-            service, why = next(iter(waiting.items()), ("", "not stable"))
-            return Verdict(False, f"{service}: {why} after {policy.timeout:g}s (health.timeout)",
-                           service or None, containers=containers)
-        poller.nap(poll_interval(policy, start, watched=poller.watching(containers, waiting)))
+    probe: Future[Verdict] | None = None
+    early = True   # the running probe started before every service was healthy
+    ran: set[str] = set()   # services running when the probe began
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ros-probe") as pool:
+        while True:
+            containers, failure = poller.poll(expected)
+            if failure:
+                return Verdict(False, failure[1], failure[0], containers=containers)
+            waiting = unhealthy_services(containers, expected)
+            if probe is None and not checks_only and _probe_can_start(spec, containers):
+                early = bool(waiting)
+                ran = {c.service for c in containers if c.status == "running"}
+                probe = pool.submit(_probe_graph, t, spec, containers, policy, deadline)
+            if fail_fast:
+                missing = _missing_early(probe, ran, spec) if not checks_only else \
+                    poller.look_for_topics(containers, waiting, start, deadline)
+                if missing is not None:
+                    return replace(missing, reason=_never_appeared(missing, waiting, policy.topics_within),
+                                   containers=containers)
+            if not waiting and time.monotonic() - start >= policy.stable:
+                if checks_only:
+                    return Verdict(True, "running and passing health checks", containers=containers)
+                verdict = probe.result() if probe else _probe_graph(t, spec, containers, policy, deadline)
+                if verdict.ok or not early or time.monotonic() + policy.interval >= deadline:
+                    return replace(verdict, containers=containers)
+                probe, early = None, False   # probed too early: once more, now that all are healthy
+                continue
+            if time.monotonic() >= deadline:
+                service, why = next(iter(waiting.items()), ("", "not stable"))
+                return Verdict(False, f"{service}: {why} after {policy.timeout:g}s (health.timeout)",
+                               service or None, containers=containers)
+            poller.nap(poll_interval(policy, start, watched=poller.watching(containers, waiting)))
 
 
 def _missing_early(probe: Future[Verdict] | None, ran: set[str], spec: FleetSpec) -> Verdict | None:

@@ -84,10 +84,12 @@ def _int_at_least(low: int) -> Any:
 TUNABLES: dict[str, tuple[Any, Any, str]] = {
     "dds_lease_duration": (10, _int_at_least(1), "whole seconds"),
     "dds_lease_announcement": (3, _int_at_least(1), "whole seconds"),
-    # Fast DDS sends 5 announcements 100 ms apart, then one per lease announcement (3 s).
-    # A participant that starts over 0.5 s after its peer (seen on a loaded robot, where
-    # the containers of a release start together) then waits up to 3 s to discover it.
-    "dds_initial_announcements": (15, _int_at_least(1), "a number of announcements"),
+    # Fast DDS sends 5 announcements 100 ms apart, then one per lease announcement (3 s),
+    # and does not answer a new participant's. One that starts later than the announcements
+    # last (a later container, the gate's ROS probe, often 3-4 s after the driver) waits up
+    # to 3 s to discover its peers: seen in 5 of 12 gate probes with 15 x 200 ms. 50 x 200 ms
+    # covers health.topics_within's default 10 s, for a one-off burst of small packets.
+    "dds_initial_announcements": (50, _int_at_least(1), "a number of announcements"),
     "dds_initial_announcement_period_ms": (200, _int_at_least(1), "whole milliseconds"),
     "dds_socket_buffer": ("10MB", lambda v: bool(re.fullmatch(r"[0-9]+(\.[0-9]+)?[ \t]*([kKMG]i?)?B?", str(v))),
                           "a size like 10MB or 8MiB"),

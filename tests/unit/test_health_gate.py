@@ -216,6 +216,7 @@ ABSENT = {"topics": {"/joint_states": {"present": False, "ok": False, "min_rate"
 
 
 def test_a_topic_never_published_fails_a_new_start_before_docker_gives_up(monkeypatch) -> None:
+    monkeypatch.setattr("rosdeploy.health.EARLY_LOOK_AFTER", 0.0)
     t = Scripted([[c("driver", health="starting")]], ABSENT)
     verdict = wait_healthy(t, SLOW, checks_only=True, services=("driver",), fail_fast=True,
                            deadline=time.monotonic() + 10)
@@ -224,7 +225,8 @@ def test_a_topic_never_published_fails_a_new_start_before_docker_gives_up(monkey
     assert t.probes == 1
 
 
-def test_going_back_never_runs_the_ros_probe() -> None:
+def test_going_back_never_judges_by_the_early_look(monkeypatch) -> None:
+    monkeypatch.setattr("rosdeploy.health.EARLY_LOOK_AFTER", 0.0)
     t = Scripted([[c("driver", health="starting")]], ABSENT)
     verdict = wait_healthy(t, SLOW, checks_only=True, services=("driver",), deadline=time.monotonic() + 0.3)
     assert not verdict.ok and "health.timeout" in verdict.reason and t.probes == 0
@@ -244,6 +246,7 @@ def test_the_gate_probe_fails_early_only_for_topics_of_services_that_ran(monkeyp
 
 
 def test_topics_within_sets_the_probe_wait_and_names_itself(monkeypatch) -> None:
+    monkeypatch.setattr("rosdeploy.health.EARLY_LOOK_AFTER", 0.0)
     sent: list[dict] = []
     t = Scripted([[c("driver", health="starting")]], ABSENT)
     answer = t.run
@@ -260,10 +263,11 @@ def test_topics_within_sets_the_probe_wait_and_names_itself(monkeypatch) -> None
     assert sent and all(44.0 < s["discovery_timeout"] <= 45.0 for s in sent)
 
 
-def test_a_late_first_probe_listens_only_what_is_left_of_topics_within() -> None:
-    """Its container may run only some time after `up` started it; the wait still counts
-    from when `up` started the containers, so a silent node fails topics_within after its start."""
+def test_the_early_look_listens_only_what_is_left_of_topics_within(monkeypatch) -> None:
+    """It begins EARLY_LOOK_AFTER s after the start on purpose; the wait still counts from
+    when `up` started the containers, so a silent node fails topics_within after its start."""
     from rosdeploy.health import LOOK_AT_LEAST, Poller
+    monkeypatch.setattr("rosdeploy.health.EARLY_LOOK_AFTER", 0.0)
     sent: list[dict] = []
     for started_ago, within in ((3.0, 7.0), (60.0, LOOK_AT_LEAST)):
         t = Scripted([[c("driver", health="starting")]], ABSENT)
@@ -279,30 +283,16 @@ def test_a_late_first_probe_listens_only_what_is_left_of_topics_within() -> None
         assert within - 0.5 < sent[-1]["discovery_timeout"] <= within
 
 
-def test_the_probe_begun_in_a_level_wait_is_the_gates_own() -> None:
-    """The first level's container runs: the probe starts there, in the background, and the
-    gate after the last level takes its verdict instead of probing again."""
+def test_no_rate_probe_runs_in_a_level_wait_whose_services_start_fast() -> None:
+    """During an upgrade's level wait the OLD release's later services still run (the next
+    level replaces them): a probe begun there would measure their topics, not the new
+    release's. The gate's verdict comes from a probe begun after the last level started."""
     from rosdeploy.health import Poller
-    t = Scripted([[c("driver", health="starting")], [c("driver")], [c("driver"), c("perception")]], tests_pass=False)
+    t = Scripted([[c("driver")], [c("driver"), c("perception")]])
     poller = Poller(t, SLOW, watch=True)
     began = time.monotonic()
-    ready = wait_healthy(t, SLOW, since=began, checks_only=True, services=("driver",), fail_fast=True,
-                         poller=poller, deadline=began + 10)
-    assert ready.ok and poller.gate is not None and poller.gate_early
-    verdict = wait_healthy(t, SLOW, since=began, poller=poller, fail_fast=True, deadline=began + 10)
-    assert verdict.ok and verdict.probe and t.probes == 1
-
-
-def test_an_early_probe_that_missed_a_later_levels_topic_probes_once_more() -> None:
-    from rosdeploy.health import Poller
-    spec = replace(SLOW, services=(SPEC.services[0], replace(SPEC.services[1], topics=(Topic("/detections", 2.0),))))
-    late = {"topics": {"/joint_states": {"present": True, "ok": True, "rate": 10, "min_rate": 5},
-                       "/detections": {"present": False, "ok": False, "min_rate": 2}}}
-    t = Scripted([[c("driver")], [c("driver"), c("perception")]], late)
-    poller = Poller(t, spec, watch=True)
-    began = time.monotonic()
-    assert wait_healthy(t, spec, since=began, checks_only=True, services=("driver",), fail_fast=True,
+    assert wait_healthy(t, SLOW, since=began, checks_only=True, services=("driver",), fail_fast=True,
                         poller=poller, deadline=began + 10).ok
-    t.probe = None    # the second probe, with perception running, sees both topics
-    verdict = wait_healthy(t, spec, since=began, poller=poller, fail_fast=True, deadline=began + 10)
-    assert verdict.ok and t.probes == 2 and poller.probed == 2
+    assert t.probes == 0
+    assert wait_healthy(t, SLOW, since=began, poller=poller, fail_fast=True, deadline=began + 10).ok
+    assert t.probes == 1
