@@ -59,9 +59,9 @@ class _Listener:
             if name in graph and (not self.published or self.node.count_publishers(name) > 0):
                 self.found[name] = graph[name]
                 if name in self.enough and self.window > 0:
-                    self._listen(name, graph[name][0], now)
+                    self._subscribe(name, graph[name][0], now)
 
-    def _listen(self, name, type_name, now):
+    def _subscribe(self, name, type_name, now):
         from rclpy.qos import qos_profile_sensor_data  # best effort: matches reliable and best-effort publishers
 
         self.stamps[name], self.since[name] = [], now

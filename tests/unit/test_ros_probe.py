@@ -116,7 +116,6 @@ def test_discovery_ends_at_its_deadline_but_listens_a_moment_after_init(monkeypa
     still leaves the participant AFTER_INIT_AT_LEAST to see what is there."""
     monkeypatch.setattr(ros_probe, "AFTER_INIT_AT_LEAST", 0.3)
     for ends_in, at_least in ((-5.0, 0.3), (0.6, 0.6)):
-        began = time.monotonic()
         for find in (ros_probe._discover, None):
             began = time.monotonic()
             if find:
