@@ -34,6 +34,7 @@ other template error: a file:key problem, exit 2.
 from __future__ import annotations
 
 import collections.abc
+import contextlib
 import itertools
 import importlib
 import os
@@ -43,7 +44,7 @@ import threading
 import types
 from functools import update_wrapper
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping, MutableMapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, MutableMapping, Sequence, cast
 
 import jinja2
 import jinja2.nodes
@@ -53,6 +54,8 @@ from jinja2.runtime import LoopContext
 from jinja2.sandbox import ImmutableSandboxedEnvironment, SandboxedEscapeFormatter, SandboxedFormatter, SecurityError
 from markupsafe import Markup
 
+MAX_NESTING = 64                 # levels of a template's syntax tree (see _PlainReads._parse)
+TOO_DEEP = "brackets, parentheses or expressions nest too deeply: split it into smaller values"
 MAX_LENGTH = 1_000_000          # characters or items one operation may produce
 OBJECT_WEIGHT = 64               # what an object other than a string, number or container counts as
 MAX_POWER_BITS = 4096           # `**` and int `*` results beyond this are a DoS, not a configuration value
@@ -256,6 +259,49 @@ class _PlainReads(ImmutableSandboxedEnvironment):
                 pass
         return super().getattr(obj, attribute)
 
+    # Parsing, code generation and Python's compile() all recurse once per nesting level: a
+    # value like `{{ [[[[...1]]]] }}` 1,000 deep is a syntax error of the value, not a crash.
+    def _parse(self, source: str, name: str | None, filename: str | None) -> jinja2.nodes.Template:
+        with _nesting_bounded(name, filename):
+            tree = super()._parse(source, name, filename)
+        # Jinja's code generator takes time that grows faster than the square of the nesting
+        # (`{{ x.y.y.y... }}` 300 deep: 4 s). rosdeploy's own templates nest 8 deep.
+        deep = _deeper_than(tree, MAX_NESTING)
+        if deep is not None:
+            raise jinja2.TemplateSyntaxError(f"{TOO_DEEP} (more than {MAX_NESTING} levels)", deep.lineno or 1,
+                                             name, filename)
+        return tree
+
+    def _generate(self, source: jinja2.nodes.Template, name: str | None, filename: str | None,
+                  defer_init: bool = False) -> str:
+        with _nesting_bounded(name, filename):
+            return super()._generate(source, name, filename, defer_init=defer_init)
+
+    def _compile(self, source: str, filename: str) -> types.CodeType:
+        with _nesting_bounded(None, filename):
+            return super()._compile(source, filename)
+
+
+def _deeper_than(tree: jinja2.nodes.Node, limit: int) -> jinja2.nodes.Node | None:
+    """The first node found more than `limit` levels down, walked without recursion."""
+    stack = [(tree, 1)]
+    while stack:
+        node, depth = stack.pop()
+        if depth > limit:
+            return node
+        stack.extend((child, depth + 1) for child in node.iter_child_nodes())
+    return None
+
+
+@contextlib.contextmanager
+def _nesting_bounded(name: str | None, filename: str | None) -> Iterator[None]:
+    try:
+        yield
+    except (RecursionError, MemoryError) as exc:
+        raise jinja2.TemplateSyntaxError(TOO_DEEP, 1, name, filename) from exc
+    except SyntaxError as exc:   # Python's own limit: "too many nested parentheses"
+        raise jinja2.TemplateSyntaxError(f"{TOO_DEEP} ({exc.msg})", 1, name, filename) from exc
+
 
 class ShippedSandbox(_PlainReads):
     """For rosdeploy's own templates (rosdeploy/templates/): Jinja's sandbox, without the bounds
@@ -332,6 +378,10 @@ class Sandbox(_PlainReads):
             self.filters[name] = bound(self.filters[name])
         self.filters["random"] = _no_random
         self.tests["in"] = _test_in
+        for name in ("default", "d"):
+            self.filters[name] = _failing_refused(self.filters[name])
+        for name in ("defined", "undefined"):
+            self.tests[name] = _failing_refused(cast(Callable[..., Any], self.tests[name]))
         self.add_filters({})
 
     def add_filters(self, filters: Mapping[str, Callable[..., Any]]) -> None:
@@ -461,7 +511,8 @@ def _decoded(get: Callable[[], Any], template: str) -> Any:
 def value_template(env: jinja2.Environment, source: str) -> jinja2.Template:
     """Compile one configuration value: expressions and `if` only (TemplateSyntaxError otherwise)."""
     tree = env.parse(source)
-    found = next(iter(tree.find_all(_VALUE_FORBIDDEN)), None)
+    with _nesting_bounded(None, None):     # find_all recurses too
+        found = next(iter(tree.find_all(_VALUE_FORBIDDEN)), None)
     if found is not None:
         kind = type(found).__name__.lower()
         raise jinja2.TemplateSyntaxError(
@@ -745,6 +796,21 @@ _METHOD_BOUNDS: dict[str | None, Callable[[Any, tuple[Any, ...], dict[str, Any]]
     "rjust": _method_width, "zfill": _method_width, "expandtabs": _method_expandtabs,
     "translate": _method_translate,
 }
+
+
+class Failing(jinja2.StrictUndefined):
+    """An undefined that stands for an error, not an absence (an inventory var whose template is
+    broken, rosdeploy.inventory.templating.Broken): `default` and `is defined` raise its error
+    instead of quietly standing in for the value the user meant."""
+
+
+def _failing_refused(func: Callable[..., Any]) -> Callable[..., Any]:
+    def refusing(value: Any, *args: Any, **kwargs: Any) -> Any:
+        if isinstance(value, Failing):
+            value._fail_with_undefined_error()
+        return func(value, *args, **kwargs)
+    _copy_markers(func, refusing)
+    return refusing
 
 
 def _bounded_filter(func: Callable[..., Any]) -> Callable[..., Any]:

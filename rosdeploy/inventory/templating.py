@@ -23,7 +23,7 @@ from typing import Any, Iterator, Mapping
 
 import jinja2
 
-from rosdeploy.sandbox import MAX_LENGTH, Sandbox
+from rosdeploy.sandbox import MAX_LENGTH, Failing, Sandbox
 
 from rosdeploy.errors import InventoryError, Problem, shown
 from rosdeploy.inventory.draft import Origin, strings
@@ -36,11 +36,12 @@ _WHOLE = re.compile(r"^\{\{(?P<expr>.*)\}\}$", re.S)
 class TemplateFailed(Exception):
     """A value could not be templated; `key` is the var whose template failed."""
 
-    def __init__(self, key: str, message: str, deep: bool = False) -> None:
+    def __init__(self, key: str, message: str, deep: bool = False, undefined: bool = False) -> None:
         super().__init__(message)
         self.key = key
         self.message = message
         self.deep = deep     # Python's stack ran out: every var on the way down failed with it
+        self.undefined = undefined   # it reads a name nothing defines: `| default(..)` may stand in
 
 
 class UnresolvedVar(InventoryError, jinja2.UndefinedError):
@@ -52,9 +53,16 @@ class UnresolvedVar(InventoryError, jinja2.UndefinedError):
 
 
 class Unresolved(jinja2.StrictUndefined):
-    """A var whose template fails (`{{ ansible_facts.. }}` and `{{ playbook_dir }}` exist only in a
-    play): Ansible fails only where it is used, so this is harmless until something reads it, then
-    a clean error naming file and key. The vars rosdeploy itself reads are checked at load."""
+    """A var whose template reads an undefined name (`{{ ansible_facts.. }}` and `{{ playbook_dir }}`
+    exist only in a play): Ansible fails only where it is used, so this is harmless until something
+    reads it, then a clean error naming file and key, and `| default(..)` stands in for it, as in
+    Ansible. A var whose template is broken (a syntax error, `1/0`) fails wherever it is read,
+    `default` or not, as in Ansible: a typo must not quietly deploy the default. The vars rosdeploy
+    itself reads are checked at load."""
+
+
+class Broken(Unresolved, Failing):
+    """A var whose template is broken: `default` and `is defined` fail on it (sandbox.Failing)."""
 
 
 def _bool(value: Any) -> bool:
@@ -171,7 +179,8 @@ class HostVars(Mapping[str, Any]):
             origin = self._origins.get(failed.key) or self._origins[key]
             problem = origin.problem((failed.key,), f"robot {shown(self._name)}: {failed.message}")
             # Jinja raises exc(hint) where the value is used: UnresolvedVar takes the Problem itself
-            return Unresolved(hint=problem, name=key, exc=UnresolvedVar)  # type: ignore[arg-type]
+            kind = Unresolved if failed.undefined else Broken
+            return kind(hint=problem, name=key, exc=UnresolvedVar)  # type: ignore[arg-type]
 
     def value(self, key: str) -> Any:
         """The templated value; TemplateFailed (naming the var) if it cannot be templated."""
@@ -291,7 +300,8 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
     except TemplateFailed:
         raise
     except jinja2.TemplateError as exc:
-        raise TemplateFailed(key, f"cannot template {shown(value)}: {_reason(exc)}") from None
+        raise TemplateFailed(key, f"cannot template {shown(value)}: {_reason(exc)}",
+                             undefined=isinstance(exc, jinja2.UndefinedError)) from None
     except RecursionError:
         raise TemplateFailed(key, f"cannot template {shown(value)}: the templates refer to each other without end, "
                                   "or nest too deeply", deep=True) from None

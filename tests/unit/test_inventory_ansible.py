@@ -75,11 +75,48 @@ def test_a_hostile_template_runs_nothing_and_leaks_nothing(tmp_path: Path, monke
 def test_a_template_error_in_a_var_read_later_names_file_and_key(tmp_path: Path) -> None:
     write(tmp_path, {"hosts.yml": ONE, "group_vars/all.yml": "motd: '{{ nope }}'\nloop: '{{ loop }}'\n"})
     host = load_inventory(str(tmp_path)).hosts["r1"]   # lazily: unused vars do not stop a load
-    copied = {**host.vars}                              # nor does copying them (the renderer does)
+    copied = {**host.vars}                              # nor does copying them
     with pytest.raises(InventoryError, match=r"all.yml:1: motd: robot 'r1': cannot template .*nope"):
         str(copied["motd"])
     with pytest.raises(InventoryError, match="recursive loop"):
         str(host.vars["loop"])
+
+
+@pytest.mark.parametrize("broken", ["{{ 1/0 }}", "{{ [[1] }}", "{{ x | no_such_filter }}", "{{ model }}"])
+@pytest.mark.parametrize("use", ["{{ model | default('small') }}", "{{ model | d('small') }}",
+                                 "{{ model if model is defined else 'small' }}",
+                                 "{{ 'small' if model is undefined else model }}"])
+def test_a_broken_var_is_an_error_even_where_a_default_stands_in(
+        tmp_path: Path, capsys: pytest.CaptureFixture, broken: str, use: str) -> None:
+    """As in Ansible: `default` stands in for a var that is not there, or whose template reads a
+    name that is not; a var whose template cannot work (1/0, a syntax error, a filter that does
+    not exist, a loop) is an error, never quietly the default."""
+    lab = tmp_path / "lab"
+    shutil.copytree(DATA, lab)
+    (lab / "inventory" / "host_vars" / "r2.yml").write_text(f"model: '{broken}'\n")
+    fleet = (lab / "fleet.yml").read_text()
+    (lab / "fleet.yml").write_text(fleet.replace("    restart: always\n",
+                                                 f"    restart: always\n    environment: {{MODEL: \"{use}\"}}\n"))
+    code = main(["render", str(lab / "fleet.yml"), "--vault-password-file",
+                 str(lab / "inventory" / ".vault-password"), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "r2.yml:1: model: robot 'r2'" in err, err
+    assert "Traceback" not in err and not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("reads", ["{{ nosuch }}", "{{ nosuch.field }}", "{{ ansible_facts.hostname }}"])
+def test_a_var_that_reads_an_undefined_name_takes_the_default(
+        tmp_path: Path, capsys: pytest.CaptureFixture, reads: str) -> None:
+    lab = tmp_path / "lab"
+    shutil.copytree(DATA, lab)
+    (lab / "inventory" / "host_vars" / "r2.yml").write_text(f"model: '{reads}'\n")
+    fleet = (lab / "fleet.yml").read_text()
+    (lab / "fleet.yml").write_text(fleet.replace(
+        "    restart: always\n", "    restart: always\n    environment: {MODEL: \"{{ model | default('small') }}\"}\n"))
+    code = main(["render", str(lab / "fleet.yml"), "--vault-password-file",
+                 str(lab / "inventory" / ".vault-password"), "--out", str(tmp_path / "out")])
+    assert code == 0, capsys.readouterr().err
+    assert 'MODEL: "small"' in (tmp_path / "out" / "r2" / "compose.yml").read_text()
 
 
 def test_vars_that_need_a_playbook_fail_only_where_a_fleet_template_uses_them(

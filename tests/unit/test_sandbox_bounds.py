@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Sequence
 
 import jinja2
 import pytest
@@ -42,6 +43,20 @@ def set_env(lab: Path, value: str) -> None:
     data = yaml.safe_load(path.read_text())
     data["services"]["driver"].setdefault("environment", {})["X"] = value
     path.write_text(yaml.safe_dump(data, sort_keys=False))
+
+
+def refused_at_key(capsys: pytest.CaptureFixture, lab: Path, command: str, value: str,
+                   words: Sequence[str]) -> float:
+    """`value` in a fleet environment value: exit 2 at its file:key with one of `words`, no crash, nothing
+    written; the seconds it took."""
+    set_env(lab, value)
+    code, text, took = cli(capsys, lab, command)
+    assert code == 2, text
+    assert "fleet.yml" in text and "services.driver.environment.X" in text, text
+    assert any(w in text for w in words), text
+    assert not any(crash in text for crash in ("Traceback", "internal error", "MemoryError", "RecursionError")), text
+    assert not (lab / "out").exists()
+    return took
 
 
 def render(source: str, **variables: object) -> str:
@@ -175,12 +190,7 @@ def test_a_long_value_within_the_bound_renders() -> None:
 @pytest.mark.parametrize("command", ["validate", "check", "render"])
 def test_a_fleet_value_that_amplifies_is_a_clean_problem(capsys: pytest.CaptureFixture, lab: Path,
                                                          payload: str, command: str) -> None:
-    set_env(lab, payload)
-    code, text, took = cli(capsys, lab, command)
-    assert code == 2, text
-    assert "fleet.yml" in text and "services.driver.environment.X" in text, text
-    assert any(words in text for words in OURS), text
-    assert "Traceback" not in text and "internal error" not in text and "MemoryError" not in text, text
+    took = refused_at_key(capsys, lab, command, payload, OURS)
     assert took < QUICK * 2, took
     assert not (lab / "out").exists()
 
@@ -336,3 +346,44 @@ def test_objects_that_write_the_same_text_every_run_still_write() -> None:
 def test_a_memory_error_says_what_to_do() -> None:
     text = describe(MemoryError())
     assert "memory" in text and "smaller" in text and "()" not in text, text
+
+
+DEEP = 3000    # levels: Jinja's parser takes ~12 frames a level, Python's stack 1,000 frames
+
+
+@pytest.mark.parametrize("source", [
+    "{{ " + "[" * DEEP + "1" + "]" * DEEP + " }}",
+    "{{ " + "(" * DEEP + "1" + ")" * DEEP + " }}",
+    "{{ " + "-" * DEEP + "1 }}",
+    "{{ " + " + ".join(["1"] * DEEP) + " }}",
+    "{{ 1" + "|string" * DEEP + " }}",
+    "{% if 1 %}" * DEEP + "x" + "{% endif %}" * DEEP,
+    "{{ x" + ".y" * 300 + " }}",     # within Python's stack, but Jinja took 4 s to compile it
+], ids=["lists", "parentheses", "minus-signs", "a-long-sum", "filters", "ifs", "attributes"])
+@pytest.mark.parametrize("command", ["validate", "render"])
+def test_a_fleet_value_that_nests_too_deeply_is_a_syntax_error(capsys: pytest.CaptureFixture, lab: Path,
+                                                                source: str, command: str) -> None:
+    took = refused_at_key(capsys, lab, command, source, ("nest too deeply",))
+    assert took < QUICK / 2, took     # the attribute chain: 4 s before the nesting bound
+
+
+def test_a_template_file_that_nests_too_deeply_names_the_file(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    (lab / "templates").mkdir()
+    (lab / "templates" / "compose.yml.j2").write_text("x: {{ " + "(" * DEEP + "1" + ")" * DEEP + " }}\n")
+    (lab / "fleet.yml").write_text((lab / "fleet.yml").read_text() + "templates: templates\n")
+    code, text, _ = cli(capsys, lab, "render")
+    assert code == 2, text
+    assert "compose.yml.j2:1:" in text and "nest too deeply" in text, text
+    assert "Traceback" not in text and "internal error" not in text, text
+    assert not (lab / "out").exists()
+
+
+def test_an_inventory_var_that_nests_too_deeply_is_refused_where_it_is_used(capsys: pytest.CaptureFixture,
+                                                                             lab: Path) -> None:
+    nested = "[" * DEEP + "1" + "]" * DEEP
+    (lab / "inventory" / "host_vars" / "r2.yml").write_text(f"deep: '{{{{ {nested} }}}}'\n")
+    set_env(lab, "{{ deep | default('x') if inventory_hostname == 'r2' else 'x' }}")
+    code, text, _ = cli(capsys, lab, "validate")
+    assert code == 2, text
+    assert "r2.yml:1: deep:" in text and "robot 'r2'" in text, text
+    assert "Traceback" not in text and "internal error" not in text, text
