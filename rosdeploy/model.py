@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
+from functools import cached_property
 from types import MappingProxyType
 from typing import Any, Mapping, TypeVar
 
@@ -221,7 +222,7 @@ class RenderedRelease:
     # checks need not parse it back; None for a user's own compose template. Not part of the digest.
     compose_data: Any = field(default=None, compare=False, repr=False)
 
-    @property
+    @cached_property   # frozen: the files never change; 5,000 robots' tables and plans ask often
     def digest(self) -> str:
         """sha256 over names, modes and contents of every file: the release's identity."""
         h = hashlib.sha256()

@@ -77,9 +77,9 @@ class Output:
         rows = [[str(c) for c in row] for row in rows]
         widths = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(header)]
         fmt = "  ".join(f"{{:<{w}}}" for w in widths)
-        self.line(self.paint(fmt.format(*header).rstrip(), "bold"))
-        for row in rows:
-            self.line(fmt.format(*row).rstrip())
+        # one write: a line each was a flush (a syscall) and a masking pass per robot
+        self.line("\n".join([self.paint(fmt.format(*header).rstrip(), "bold"),
+                             *(fmt.format(*row).rstrip() for row in rows)]))
 
     def paint(self, text: str, style: str) -> str:
         """`text` styled for `line()` (its stream's colour decision; error/warn paint their own)."""

@@ -3,13 +3,16 @@
 Creating files is kernel time (500 robots are 3,500 files and 1,500 folders: 0.1-0.35 s on
 ext4, a quarter of the command). A large fleet renders in forked children (rosdeploy.forked),
 so each child writes the robots it rendered, on its own core, instead of sending their files
-back to be written here. Everything lands in a staging folder inside DIR first; the robots'
-folders move into place only once every check passed, so a refused fleet leaves DIR as it was,
-and no DIR when there was none.
+back to be written here. Everything lands in a staging folder first; the robots' folders move
+into place only once every check passed, so a refused fleet leaves DIR as it was, and no DIR
+when there was none. A new DIR is staged beside itself and lands in one rename (500 robots'
+folders moved one by one took 14 ms); an existing one is staged inside and filled robot by robot.
 """
 from __future__ import annotations
 
+import errno
 import os
+import secrets
 import shutil
 import tempfile
 from pathlib import Path
@@ -56,9 +59,9 @@ def cannot_write(exc: OSError, root: Path) -> InputError:
 
 
 class Staged:
-    """A staging folder inside `root`: write(release) puts a robot's folder there, from whichever
+    """A staging folder for `root`: write(release) puts a robot's folder there, from whichever
     process rendered it; finish(commit=True) moves every robot's folder into place. Any finish
-    leaves no staging folder, and no `root` when this made it and nothing landed.
+    leaves no staging folder, and no `root` when there was none and nothing landed.
 
     A write that fails does not stop the render: the fleet's own errors, found later, say more
     than "cannot write" does. The failure is kept and raised by finish(commit=True). A forked
@@ -67,13 +70,16 @@ class Staged:
 
     def __init__(self, root: Path) -> None:
         self.root = root
-        self.created, self.stage = _staging(root)
+        self.beside, self.stage = _staging(root)
         self.pid = os.getpid()
         self.failed: OSError | None = None
 
     def write(self, release: RenderedRelease) -> None:
         if self.failed is not None:
             return
+        # cached on the release: computed on the core that rendered it, and a forked child sends
+        # it back with the release, instead of this process hashing 500 robots' files for the table
+        _ = release.digest
         try:
             write_release(os.path.join(self.stage, release.host), files_of(release))
         except OSError as exc:
@@ -83,28 +89,38 @@ class Staged:
 
     def finish(self, commit: bool, names: Iterable[str] = ()) -> None:
         """Move `names` into place (commit), or drop what was written (the caller is failing)."""
-        done = False
         try:
             if commit:
                 if self.failed is not None:
                     raise self.failed
-                _move_into_place(self.stage, self.root, names)
-                done = True
+                if not (self.beside and _renamed_whole(self.stage, self.root)):
+                    _move_into_place(self.stage, self.root, names)
         finally:
-            _clean(self.stage, self.root, drop_root=self.created and not done)
+            shutil.rmtree(self.stage, ignore_errors=True)
 
 
 def _staging(root: Path) -> tuple[bool, str]:
-    """Whether `root` is made now, and a new staging folder inside it."""
-    created = not root.exists()
-    root.mkdir(parents=True, exist_ok=True)
-    return created, tempfile.mkdtemp(prefix=STAGE_PREFIX, dir=root)
+    """A new staging folder, and whether it is beside `root` (there is no root yet: the stage
+    becomes it) or inside it."""
+    if os.path.lexists(root):
+        return False, tempfile.mkdtemp(prefix=STAGE_PREFIX, dir=root)
+    root.parent.mkdir(parents=True, exist_ok=True)
+    # not mkdtemp: its 0700 would become the root's mode; mkdir's 0777 less the umask is what
+    # a root made by `mkdir` always had
+    stage = root.parent / f"{STAGE_PREFIX}{root.name}-{secrets.token_hex(6)}"
+    stage.mkdir()
+    return True, str(stage)
 
 
-def _clean(stage: str, root: Path, drop_root: bool) -> None:
-    shutil.rmtree(stage, ignore_errors=True)
-    if drop_root:
-        shutil.rmtree(root, ignore_errors=True)
+def _renamed_whole(stage: str, root: Path) -> bool:
+    """The stage renamed to `root`; False when a `root` appeared meanwhile (then robot by robot)."""
+    try:
+        os.rename(stage, root)
+    except OSError as exc:
+        if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
+            return False
+        raise
+    return True
 
 
 def _move_into_place(stage: str, root: Path, names: Iterable[str]) -> None:

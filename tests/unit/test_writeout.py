@@ -44,6 +44,31 @@ def test_every_release_lands_with_its_modes_and_no_staging(tmp_path: Path) -> No
     assert stat.S_IMODE((root / "b" / "compose.yml").stat().st_mode) == 0o644
 
 
+def test_a_new_out_folder_lands_whole_with_the_mode_mkdir_gives(tmp_path: Path) -> None:
+    old = os.umask(0o027)
+    try:
+        offline._render_to(tmp_path / "new" / "out", renders(release("a"), release("b")))
+    finally:
+        os.umask(old)
+    root = tmp_path / "new" / "out"
+    assert stat.S_IMODE(root.stat().st_mode) == 0o750     # not a temp folder's 0700
+    assert sorted(p.name for p in root.iterdir()) == ["a", "b"]
+    assert [p.name for p in root.parent.iterdir()] == ["out"]     # no staging folder beside it
+
+
+def test_an_out_folder_made_meanwhile_keeps_its_files_and_gets_the_robots(tmp_path: Path) -> None:
+    root = tmp_path / "out"
+
+    def render(sink):
+        done = renders(release("a"), release("b"))(sink)
+        root.mkdir(exist_ok=True)
+        (root / "notes.txt").write_text("mine\n")     # another program, while rosdeploy rendered
+        return done
+    offline._render_to(root, render)
+    assert sorted(p.name for p in root.iterdir()) == ["a", "b", "notes.txt"]
+    assert (root / "a" / "compose.yml").is_file() and [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
 @pytest.mark.parametrize("failure", [InputError([]), KeyboardInterrupt()])
 def test_a_run_that_fails_after_some_robots_were_sent_leaves_nothing_and_keeps_its_own_error(
         tmp_path: Path, failure: BaseException) -> None:
@@ -51,7 +76,7 @@ def test_a_run_that_fails_after_some_robots_were_sent_leaves_nothing_and_keeps_i
     root = tmp_path / "out"
     with pytest.raises(type(failure)):
         offline._render_to(root, renders(release("a"), release("b"), then=failure))
-    assert not root.exists()
+    assert not root.exists() and list(tmp_path.iterdir()) == []
 
 
 def test_a_file_name_that_leaves_the_robot_folder_is_refused(tmp_path: Path) -> None:
