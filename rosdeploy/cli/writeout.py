@@ -101,14 +101,17 @@ class Staged:
 
 def _staging(root: Path) -> tuple[bool, str]:
     """A new staging folder, and whether it is beside `root` (there is no root yet: the stage
-    becomes it) or inside it."""
-    if os.path.lexists(root):
-        return False, tempfile.mkdtemp(prefix=STAGE_PREFIX, dir=root)
-    root.parent.mkdir(parents=True, exist_ok=True)
-    # not mkdtemp: its 0700 would become the root's mode; mkdir's 0777 less the umask is what
-    # a root made by `mkdir` always had
-    stage = root.parent / f"{STAGE_PREFIX}{root.name}-{secrets.token_hex(6)}"
-    stage.mkdir()
+    becomes it) or inside it. A failure names `root`, the folder the user gave."""
+    try:
+        if os.path.lexists(root):
+            return False, tempfile.mkdtemp(prefix=STAGE_PREFIX, dir=root)
+        root.parent.mkdir(parents=True, exist_ok=True)
+        # not mkdtemp: its 0700 would become the root's mode; mkdir's 0777 less the umask is what
+        # a root made by `mkdir` always had
+        stage = root.parent / f"{STAGE_PREFIX}{secrets.token_hex(6)}"   # short: any root's name fits
+        stage.mkdir()
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(root)) from exc
     return True, str(stage)
 
 
@@ -119,7 +122,7 @@ def _renamed_whole(stage: str, root: Path) -> bool:
     except OSError as exc:
         if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
             return False
-        raise
+        raise OSError(exc.errno, exc.strerror, str(root)) from exc   # the user's path, not the stage's
     return True
 
 

@@ -59,15 +59,26 @@ def test_a_tilde_path_of_the_current_user_still_expands(capsys: pytest.CaptureFi
     assert code == 0, text
 
 
-@pytest.mark.parametrize("out", ["file", "too-long"])
+@pytest.mark.parametrize("out", ["file", "too-long", "dangling-link"])
 def test_render_out_that_cannot_be_written_is_an_input_error(capsys: pytest.CaptureFixture, lab: Path,
                                                              out: str) -> None:
     target = lab / "a-file"
     target.write_text("keep me\n")
-    path = str(target) if out == "file" else str(lab / ("x" * 300))
+    (lab / "dangling-link").symlink_to(lab / "nowhere")
+    path = {"file": str(target), "too-long": str(lab / ("x" * 300))}.get(out, str(lab / out))
     code, text = run(capsys, "render", *fleet_args(lab), "--out", path)
     assert code == 2 and "--out" in text and "cannot write there" in text
-    assert target.read_text() == "keep me\n"
+    assert f"{path}: --out" in text and ".rosdeploy-render" not in text, text   # the user's path, not ours
+    assert target.read_text() == "keep me\n" and not (lab / "nowhere").exists()
+
+
+def test_render_out_with_the_longest_name_a_folder_may_have_is_written(capsys: pytest.CaptureFixture,
+                                                                       lab: Path) -> None:
+    path = lab / ("x" * 255)
+    code, text = run(capsys, "render", *fleet_args(lab), "--out", str(path))
+    assert code == 0, text
+    assert (path / "r1" / "compose.yml").is_file()
+    assert not [p.name for p in lab.iterdir() if p.name.startswith(".rosdeploy-render")]
 
 
 def test_a_fifo_as_fleet_file_or_in_the_inventory_is_refused_not_waited_on(capsys: pytest.CaptureFixture,
