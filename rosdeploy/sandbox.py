@@ -54,7 +54,7 @@ from jinja2.runtime import LoopContext
 from jinja2.sandbox import ImmutableSandboxedEnvironment, SandboxedEscapeFormatter, SandboxedFormatter, SecurityError
 from markupsafe import Markup
 
-MAX_NESTING = 64                 # levels of a template's syntax tree (see _PlainReads._parse)
+MAX_NESTING = 64                 # levels of a template's syntax tree (see _PlainReads._generate)
 TOO_DEEP = "brackets, parentheses or expressions nest too deeply: split it into smaller values"
 MAX_LENGTH = 1_000_000          # characters or items one operation may produce
 OBJECT_WEIGHT = 64               # what an object other than a string, number or container counts as
@@ -263,17 +263,18 @@ class _PlainReads(ImmutableSandboxedEnvironment):
     # value like `{{ [[[[...1]]]] }}` 1,000 deep is a syntax error of the value, not a crash.
     def _parse(self, source: str, name: str | None, filename: str | None) -> jinja2.nodes.Template:
         with _nesting_bounded(name, filename):
-            tree = super()._parse(source, name, filename)
-        # Jinja's code generator takes time that grows faster than the square of the nesting
-        # (`{{ x.y.y.y... }}` 300 deep: 4 s). rosdeploy's own templates nest 8 deep.
-        deep = _deeper_than(tree, MAX_NESTING)
-        if deep is not None:
-            raise jinja2.TemplateSyntaxError(f"{TOO_DEEP} (more than {MAX_NESTING} levels)", deep.lineno or 1,
-                                             name, filename)
-        return tree
+            return super()._parse(source, name, filename)
 
     def _generate(self, source: jinja2.nodes.Template, name: str | None, filename: str | None,
                   defer_init: bool = False) -> str:
+        # Jinja's code generator takes time that grows faster than the square of the nesting
+        # (`{{ x.y.y.y... }}` 300 deep: 4 s). Checked here, not in _parse: compile_expression
+        # (an inventory value that is one expression) builds its tree without _parse.
+        # rosdeploy's own templates nest 8 deep.
+        deep = _deeper_than(source, MAX_NESTING)
+        if deep is not None:
+            raise jinja2.TemplateSyntaxError(f"{TOO_DEEP} (more than {MAX_NESTING} levels)", deep.lineno or 1,
+                                             name, filename)
         with _nesting_bounded(name, filename):
             return super()._generate(source, name, filename, defer_init=defer_init)
 

@@ -378,12 +378,15 @@ def test_a_template_file_that_nests_too_deeply_names_the_file(capsys: pytest.Cap
     assert not (lab / "out").exists()
 
 
+@pytest.mark.parametrize("nested", ["[" * DEEP + "1" + "]" * DEEP, "x" + ".y" * 300],
+                         ids=["lists", "attributes"])
 def test_an_inventory_var_that_nests_too_deeply_is_refused_where_it_is_used(capsys: pytest.CaptureFixture,
-                                                                             lab: Path) -> None:
-    nested = "[" * DEEP + "1" + "]" * DEEP
+                                                                             lab: Path, nested: str) -> None:
+    # one whole expression: inventory values compile it with compile_expression, which has no _parse
     (lab / "inventory" / "host_vars" / "r2.yml").write_text(f"deep: '{{{{ {nested} }}}}'\n")
     set_env(lab, "{{ deep | default('x') if inventory_hostname == 'r2' else 'x' }}")
-    code, text, _ = cli(capsys, lab, "validate")
+    code, text, took = cli(capsys, lab, "validate")
     assert code == 2, text
-    assert "r2.yml:1: deep:" in text and "robot 'r2'" in text, text
+    assert "r2.yml:1: deep:" in text and "robot 'r2'" in text and "nest too deeply" in text, text
     assert "Traceback" not in text and "internal error" not in text, text
+    assert took < QUICK / 2, took      # the attribute chain: 4 s per robot before the nesting bound
