@@ -28,6 +28,7 @@ from typing import Callable, Protocol, Sequence
 import paramiko
 from fabric import Config, Connection
 
+from rosdeploy import execwait
 from rosdeploy.commands import Command
 from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError
 from rosdeploy.fleet import MAX_KNOWN_HOSTS
@@ -42,6 +43,7 @@ logging.getLogger("paramiko").addHandler(logging.NullHandler())
 KEEPALIVE = 2.0       # s: an SSH keepalive after this long without traffic...
 LINK_TIMEOUT = 6.0    # s: ...and the link counts as lost when nothing sent is acknowledged for this long
 LINK_QUIET = 4.0      # s without a byte on a command's channel before asking whether the robot answers
+EXEC_REPLY = LINK_QUIET + LINK_TIMEOUT   # s for sshd's reply to an exec request (execwait)
 
 
 @dataclass(frozen=True)
@@ -216,14 +218,19 @@ class SSHTransport:
         except (paramiko.SSHException, OSError, EOFError) as exc:
             raise ChannelRefused(self.host.name, f"connection lost before `{command.display()}`: {exc}") from exc
         try:
-            chan.exec_command(command.wire())
+            answers = functools.partial(_answers, self._conn.transport)
+            with execwait.bounded(chan, min(timeout, EXEC_REPLY)):
+                chan.exec_command(command.wire())
             if command.stdin is not None:
-                chan.sendall(command.stdin)
+                _send(chan, command.stdin, started + timeout, answers)
                 chan.shutdown_write()
-            out, err = _drain(chan, started + timeout, lambda: _answers(self._conn.transport))
+            out, err = _drain(chan, started + timeout, answers)
             code = chan.recv_exit_status()
             if code == -1 and not self._conn.transport.is_active():
                 raise EOFError("the SSH connection dropped")
+        except execwait.NoReply as exc:
+            raise ConnectError(self.host.name, f"connection lost during `{command.display()}`: sshd did not "
+                                               f"answer the request to run it ({exc})") from exc
         except TimeoutError as exc:
             raise ConnectError(self.host.name, f"`{command.display()}` timed out after {timeout:g}s") from exc
         except (paramiko.SSHException, OSError, EOFError) as exc:
@@ -423,6 +430,31 @@ def _answers(transport: paramiko.Transport) -> bool:
     except (paramiko.SSHException, OSError, EOFError):
         return False
     return True
+
+
+SEND_CHUNK = 32768     # paramiko sends at most one packet (32 KiB) per Channel.send
+
+
+def _send(chan: paramiko.Channel, data: bytes, deadline: float, answers: Callable[[], bool]) -> None:
+    """Channel.sendall, noticing a dead link: a send waits for the robot to open its window
+    again, which a cut link never does, and sendall would wait so until the command's timeout
+    (600 s by default). After LINK_QUIET s of a shut window, ask whether the robot answers."""
+    sent = 0
+    while sent < len(data):
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError()
+        chan.settimeout(min(LINK_QUIET, left))
+        try:
+            n = chan.send(data[sent:sent + SEND_CHUNK])
+        except socket.timeout:
+            if time.monotonic() < deadline and not answers():
+                raise EOFError(f"the robot stopped answering (no reply within {LINK_TIMEOUT:g}s)") from None
+            continue
+        if n == 0:
+            raise EOFError("the robot closed the channel")
+        sent += n
+    chan.settimeout(None)
 
 
 def _drain(chan: paramiko.Channel, deadline: float, answers: Callable[[], bool] | None = None) -> tuple[str, str]:

@@ -1,0 +1,93 @@
+"""A bound on the one wait of a command that paramiko leaves unbounded.
+
+`Channel.exec_command` waits for sshd's reply to the exec request with no timeout. A dead
+link ends that wait only when the TCP connection fails, and behind anything that
+acknowledges for the robot (docker-proxy, a NAT box, a jump host) it never fails: a link
+cut at that moment held a deploy's controller until it was killed, past the moment the
+robot's guard acted (the guard test on the simulated fleet caught it, 1 case in ~30).
+
+sshd answers an exec request itself, in milliseconds. `bounded(chan, seconds)` registers the
+wait; one watcher thread for the whole process closes the channel of a wait that outlives its
+bound, and the closed channel ends exec_command with an error that `bounded` turns into
+`NoReply`. One thread, not a timer per command: a deploy runs dozens of commands per robot.
+It exits once no wait has been registered for IDLE seconds, so a process that is done with
+SSH is single-threaded again (forked.mapped forks only then).
+"""
+from __future__ import annotations
+
+import threading
+import time
+from contextlib import AbstractContextManager, contextmanager
+from typing import Iterator, Protocol
+
+TICK = 0.25     # s between the watcher's looks: the bound is met to within this
+IDLE = 5.0      # s without a registered wait before the watcher thread exits
+
+
+class Closable(Protocol):
+    def close(self) -> None: ...
+
+
+class NoReply(EOFError):
+    """The robot did not answer within the bound: the link is taken as lost."""
+
+
+class _Watcher:
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._waits: dict[int, tuple[Closable, float]] = {}   # id(channel) -> (channel, give up at)
+        self._expired: set[int] = set()
+        self._running = False
+
+    @contextmanager
+    def bounded(self, chan: Closable, seconds: float) -> Iterator[None]:
+        key = id(chan)
+        with self._lock:
+            self._waits[key] = (chan, time.monotonic() + seconds)
+            if not self._running:
+                self._running = True
+                threading.Thread(target=self._watch, name="rosdeploy-execwait", daemon=True).start()
+        try:
+            yield
+        except Exception as exc:
+            if self._release(key):
+                raise NoReply(f"no reply within {seconds:g}s") from exc
+            raise
+        # Claimed by the watcher just as the reply came: the channel is being closed anyway.
+        if self._release(key):
+            raise NoReply(f"no reply within {seconds:g}s")
+
+    def _release(self, key: int) -> bool:
+        """Unregister a wait; True if the watcher had already given up on it."""
+        with self._lock:
+            self._waits.pop(key, None)
+            if key in self._expired:
+                self._expired.discard(key)
+                return True
+            return False
+
+    def _watch(self) -> None:
+        idle_since = time.monotonic()
+        while True:
+            time.sleep(TICK)
+            now = time.monotonic()
+            with self._lock:
+                late = [(key, chan) for key, (chan, until) in self._waits.items() if until <= now]
+                for key, _ in late:
+                    del self._waits[key]
+                    self._expired.add(key)
+                if self._waits or late:
+                    idle_since = now
+                elif now - idle_since >= IDLE:
+                    self._running = False
+                    return
+            for _, chan in late:      # outside the lock: close() sends a message on the link
+                chan.close()
+
+
+_WATCHER = _Watcher()
+
+
+def bounded(chan: Closable, seconds: float) -> AbstractContextManager[None]:
+    """Within this block, a wait on `chan` longer than `seconds` closes it and raises NoReply."""
+    return _WATCHER.bounded(chan, seconds)
