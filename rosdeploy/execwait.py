@@ -6,10 +6,11 @@ acknowledges for the robot (docker-proxy, a NAT box, a jump host) it never fails
 cut at that moment held a deploy's controller until it was killed, past the moment the
 robot's guard acted (the guard test on the simulated fleet caught it, 1 case in ~30).
 
-sshd answers an exec request itself, in milliseconds. `bounded(chan, seconds)` registers the
-wait; one watcher thread for the whole process closes the channel of a wait that outlives its
-bound, and the closed channel ends exec_command with an error that `bounded` turns into
-`NoReply`. One thread, not a timer per command: a deploy runs dozens of commands per robot.
+sshd answers an exec request itself, in milliseconds (and a port-forward request, which
+paramiko's `request_port_forward` waits for the same way). `bounded(chan, seconds)` registers
+the wait; one watcher thread for the whole process closes the channel (or the connection) of a
+wait that outlives its bound, and the close ends paramiko's wait with an error that `bounded`
+turns into `NoReply`. One thread, not a timer per command: a deploy runs dozens of commands per robot.
 It exits once no wait has been registered for IDLE seconds, so a process that is done with
 SSH is single-threaded again (forked.mapped forks only then).
 """

@@ -21,7 +21,9 @@ from typing import Callable
 
 import paramiko
 
+from rosdeploy import execwait
 from rosdeploy.errors import ConnectError
+from rosdeploy.transport import EXEC_REPLY
 
 CHUNK = 16 * 1024     # paced unit: 128 sleeps a second at 2 MB/s keep the rate even
 
@@ -92,7 +94,12 @@ class Forward:
 
     def __enter__(self) -> int:
         try:
-            self.port = self.link.request_port_forward("127.0.0.1", 0, handler=self._accept)
+            # paramiko waits for the answer with no timeout (see execwait)
+            with execwait.bounded(self.link, EXEC_REPLY):
+                self.port = self.link.request_port_forward("127.0.0.1", 0, handler=self._accept)
+        except execwait.NoReply as exc:
+            raise ConnectError(self.host, f"connection lost: sshd did not answer the request for a reverse port "
+                                          f"forward ({exc})") from exc
         except (paramiko.SSHException, OSError, EOFError) as exc:
             why = (f"the robot's sshd refused a reverse port forward ({exc}): images.via ssh needs "
                    "`AllowTcpForwarding yes` (or `remote`) in its sshd_config")

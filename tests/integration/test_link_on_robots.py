@@ -1,13 +1,15 @@
 """The SSH transport on a link cut at each wait of a command, against a robot's real sshd
 behind docker-proxy, which acknowledges for the robot as a NAT box or a jump host does (so
 TCP never notices the cut): each wait ends within its bound with a ConnectError, never at the
-command's timeout (600 s by default) and never not at all.
+command's timeout (600 s by default) and never not at all; so does the reverse port
+forward's request (`images.via: ssh`).
 
 The cut is put in at the exact moment a paramiko.Channel call starts, so each test hits the
 wait it names, every run; the guard test on the fleet had hit the exec wait 1 run in ~10.
 """
 from __future__ import annotations
 
+import socket
 import threading
 import time
 from typing import Iterator
@@ -18,6 +20,7 @@ import pytest
 from rosdeploy import sim
 from rosdeploy.commands import Command
 from rosdeploy.errors import ConnectError
+from rosdeploy.images.forward import Forward, Meter
 from rosdeploy.model import Host
 from rosdeploy.sim import SimFleet
 from rosdeploy.transport import EXEC_REPLY, LINK_QUIET, LINK_TIMEOUT, SSHOptions, SSHTransport, connect
@@ -43,16 +46,16 @@ def link(sim_fleet: SimFleet) -> Iterator[SSHTransport]:
     again.close()
 
 
-def cut_at_first(monkeypatch: pytest.MonkeyPatch, method: str) -> None:
-    """Cut the robot's link as paramiko.Channel.<method> is first called."""
-    original = getattr(paramiko.Channel, method)
+def cut_at_first(monkeypatch: pytest.MonkeyPatch, method: str, of: type = paramiko.Channel) -> None:
+    """Cut the robot's link as paramiko's <of>.<method> is first called."""
+    original = getattr(of, method)
 
-    def cutting(chan: paramiko.Channel, *args: object) -> object:
-        monkeypatch.setattr(paramiko.Channel, method, original)
+    def cutting(self: object, *args: object, **kwargs: object) -> object:
+        monkeypatch.setattr(of, method, original)
         sim.cut(ROBOT)
-        return original(chan, *args)
+        return original(self, *args, **kwargs)
 
-    monkeypatch.setattr(paramiko.Channel, method, cutting)
+    monkeypatch.setattr(of, method, cutting)
 
 
 def lost_within(transport: SSHTransport, command: Command, bound: float) -> str:
@@ -91,3 +94,18 @@ def test_a_cut_while_a_command_runs(link: SSHTransport) -> None:
     finally:
         cut.join()
     assert "connection lost during `sleep 60`: the robot stopped answering" in message
+
+
+def test_a_cut_before_sshd_answers_the_port_forward_request(link: SSHTransport,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """`images.via: ssh` asks for a reverse port forward; paramiko waits for the answer with no timeout."""
+    cut_at_first(monkeypatch, "request_port_forward", of=paramiko.Transport)
+    began = time.monotonic()
+    with pytest.raises(ConnectError) as caught:
+        with Forward(link.link, socket.socket, (), Meter(), ROBOT):
+            pass
+    took = time.monotonic() - began
+    assert took < EXEC_REPLY + SLACK, f"noticed after {took:.1f}s: {caught.value}"
+    assert "connection lost: sshd did not answer the request for a reverse port forward" in str(caught.value)
+    with pytest.raises(ConnectError, match="connection lost before `true`"):
+        link.run(Command(("true",)))        # the connection is given up, not left half-open
