@@ -39,12 +39,14 @@ class _Watcher:
         self._waits: dict[int, tuple[Closable, float]] = {}   # id(channel) -> (channel, give up at)
         self._expired: set[int] = set()
         self._running = False
+        self._registered = 0.0       # when the last wait was registered (monotonic)
 
     @contextmanager
     def bounded(self, chan: Closable, seconds: float) -> Iterator[None]:
         key = id(chan)
         with self._lock:
-            self._waits[key] = (chan, time.monotonic() + seconds)
+            self._registered = time.monotonic()
+            self._waits[key] = (chan, self._registered + seconds)
             if not self._running:
                 self._running = True
                 threading.Thread(target=self._watch, name="rosdeploy-execwait", daemon=True).start()
@@ -68,7 +70,6 @@ class _Watcher:
             return False
 
     def _watch(self) -> None:
-        idle_since = time.monotonic()
         while True:
             time.sleep(TICK)
             now = time.monotonic()
@@ -77,13 +78,14 @@ class _Watcher:
                 for key, _ in late:
                     del self._waits[key]
                     self._expired.add(key)
-                if self._waits or late:
-                    idle_since = now
-                elif now - idle_since >= IDLE:
+                if not self._waits and not late and now - self._registered >= IDLE:
                     self._running = False
                     return
             for _, chan in late:      # outside the lock: close() sends a message on the link
-                chan.close()
+                try:
+                    chan.close()
+                except Exception:     # a link already dead: the wait ends all the same, and
+                    pass              # this thread must live on for the other waits
 
 
 _WATCHER = _Watcher()

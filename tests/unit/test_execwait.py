@@ -12,11 +12,14 @@ from rosdeploy import execwait
 class Channel:
     """A wait that ends only when the channel is closed (as paramiko's exec_command wait does)."""
 
-    def __init__(self) -> None:
+    def __init__(self, close_fails: bool = False) -> None:
         self.closed = threading.Event()
+        self.close_fails = close_fails
 
     def close(self) -> None:
         self.closed.set()
+        if self.close_fails:
+            raise OSError("Socket is closed")
 
     def wait_for_reply(self, reply_after: float | None = None) -> None:
         if self.closed.wait(reply_after):
@@ -89,3 +92,25 @@ def test_the_watcher_thread_ends_when_nothing_waits() -> None:
     assert watchers() == []
     with execwait.bounded(Channel(), 5.0):       # and starts again when needed
         assert len(watchers()) == 1
+
+
+def test_a_close_that_fails_does_not_stop_the_watcher() -> None:
+    """The first channel's close raises (its link is dead already); the next wait is still bounded."""
+    first, second = Channel(close_fails=True), Channel()
+    for chan in (first, second):
+        with pytest.raises(execwait.NoReply):
+            with execwait.bounded(chan, 0.2):
+                chan.wait_for_reply(reply_after=3.0)
+    assert second.closed.is_set()
+
+
+def test_short_waits_keep_the_watcher_alive() -> None:
+    """Waits of microseconds, which the watcher's looks seldom catch: it stays while they come
+    (one thread for the whole deploy, not one started every IDLE seconds)."""
+    seen: list[threading.Thread] = []
+    for _ in range(20):                # 1 s of registrations, five times the idle time
+        with execwait.bounded(Channel(), 5.0):
+            pass
+        seen.extend(watchers())
+        time.sleep(0.05)
+    assert len(seen) == 20 and all(t is seen[0] for t in seen)
