@@ -432,6 +432,10 @@ def _answers(transport: paramiko.Transport) -> bool:
     return True
 
 
+def _stopped_answering() -> EOFError:
+    return EOFError(f"the robot stopped answering (no reply within {LINK_TIMEOUT:g}s)")
+
+
 SEND_CHUNK = 32768     # paramiko sends at most one packet (32 KiB) per Channel.send
 
 
@@ -449,7 +453,7 @@ def _send(chan: paramiko.Channel, data: bytes, deadline: float, answers: Callabl
             n = chan.send(data[sent:sent + SEND_CHUNK])
         except socket.timeout:
             if time.monotonic() < deadline and not answers():
-                raise EOFError(f"the robot stopped answering (no reply within {LINK_TIMEOUT:g}s)") from None
+                raise _stopped_answering() from None
             continue
         if n == 0:
             raise EOFError("the robot closed the channel")
@@ -469,7 +473,7 @@ def _drain(chan: paramiko.Channel, deadline: float, answers: Callable[[], bool] 
         elif answers is not None and time.monotonic() - heard >= LINK_QUIET:
             if not answers():
                 chan.close()
-                raise EOFError(f"the robot stopped answering (no reply within {LINK_TIMEOUT:g}s)")
+                raise _stopped_answering()
             heard = time.monotonic()
         while chan.recv_ready():
             out.append(chan.recv(65536))

@@ -12,7 +12,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from typing import Iterator
+from typing import Callable, Iterator
 
 import paramiko
 import pytest
@@ -59,9 +59,14 @@ def cut_at_first(monkeypatch: pytest.MonkeyPatch, method: str, of: type = parami
 
 
 def lost_within(transport: SSHTransport, command: Command, bound: float) -> str:
+    return lost_doing(lambda: transport.run(command), bound)
+
+
+def lost_doing(action: Callable[[], object], bound: float) -> str:
+    """The ConnectError `action` raises, within the bound (+ SLACK)."""
     began = time.monotonic()
     with pytest.raises(ConnectError) as caught:
-        transport.run(command)
+        action()
     took = time.monotonic() - began
     assert took < bound + SLACK, f"noticed after {took:.1f}s, bound {bound:g}s: {caught.value}"
     return str(caught.value)
@@ -100,12 +105,12 @@ def test_a_cut_before_sshd_answers_the_port_forward_request(link: SSHTransport,
                                                            monkeypatch: pytest.MonkeyPatch) -> None:
     """`images.via: ssh` asks for a reverse port forward; paramiko waits for the answer with no timeout."""
     cut_at_first(monkeypatch, "request_port_forward", of=paramiko.Transport)
-    began = time.monotonic()
-    with pytest.raises(ConnectError) as caught:
+
+    def forward() -> None:
         with Forward(link.link, socket.socket, (), Meter(), ROBOT):
             pass
-    took = time.monotonic() - began
-    assert took < EXEC_REPLY + SLACK, f"noticed after {took:.1f}s: {caught.value}"
-    assert "connection lost: sshd did not answer the request for a reverse port forward" in str(caught.value)
+
+    message = lost_doing(forward, EXEC_REPLY)
+    assert "connection lost: sshd did not answer the request for a reverse port forward" in message
     with pytest.raises(ConnectError, match="connection lost before `true`"):
         link.run(Command(("true",)))        # the connection is given up, not left half-open
