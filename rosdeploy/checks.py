@@ -29,6 +29,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 from rosdeploy import yamlsrc
 from rosdeploy.errors import InputError, Problem, shown
 from rosdeploy.fleet import problem_at, size_bytes
+from rosdeploy.inventory.hostvars import PREFIX
 from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
 
 SEVERITIES = ("error", "warning", "info")
@@ -326,8 +327,10 @@ def _domain_duplicates(ctx: Context) -> Iterator[Problem]:
 @rule("domain-id-missing", "error", "host", "Every robot declares its ros_domain_id in the inventory.",
       "Add `ros_domain_id: N` (0-101, unique per network) to the robot's host vars.")
 def _domain_missing(ctx: Context, host: Host) -> Iterator[Problem]:
-    if "ros_domain_id" not in host.vars:
-        yield host_problem(host, "ros_domain_id", (
+    # the inventory reads rosdeploy_ros_domain_id before ros_domain_id, and a null as unset
+    var = next((v for v in (PREFIX + "ros_domain_id", "ros_domain_id") if v in host.vars), "ros_domain_id")
+    if host.vars.get(var) is None:
+        yield host_problem(host, var, (
             f"{shown(host.name)} declares no ros_domain_id: without one it would join domain 0 with every other "
             "such robot; add `ros_domain_id: N` (0-101, unique on its network) to its host vars"))
 

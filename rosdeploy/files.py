@@ -32,6 +32,14 @@ FILES_DIR = "files"
 MAX_BYTES = 50 * 1024 * 1024      # a release is uploaded whole on every deploy
 
 
+class _Dumper(yaml.SafeDumper):
+    """YAML of an inventory value: a str subclass the loader made (an `!unsafe` scalar, a
+    decrypted vault value) is written as the text it is, as Ansible's to_yaml writes it."""
+
+
+_Dumper.add_multi_representer(str, yaml.SafeDumper.represent_str)
+
+
 @dataclass(frozen=True)
 class RobotFiles:
     """One robot's files: what goes into the release, and each service's mounts."""
@@ -103,7 +111,8 @@ class FileRenderer:
                 problems.append(self._problem(host, entry, f"inventory variable {shown(entry.source)} is undefined for "
                                                            "this robot: check its template in host_vars or group_vars"))
                 return None
-            return value if isinstance(value, str) else yaml.safe_dump(value, sort_keys=True, default_flow_style=False)
+            return str(value) if isinstance(value, str) else yaml.dump(value, Dumper=_Dumper, sort_keys=True,
+                                                                        default_flow_style=False)
         try:
             rel = render_value(self.paths[entry.name], *layers)
         except jinja2.TemplateError as exc:

@@ -350,7 +350,9 @@ def _text(r: Reader, kp: KeyPath, value: Any) -> Any:
     """Free text for an environment value: scalars are written as compose would read them."""
     if isinstance(value, bool):
         return str(value).lower()
-    if isinstance(value, (str, int, float)):
+    if isinstance(value, str):
+        return value       # as it is: an `!unsafe` string stays one (never templated)
+    if isinstance(value, (int, float)):
         return str(value)
     raise Invalid(f"must be a string, number or true/false; got {_kind(value)}")
 

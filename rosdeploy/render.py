@@ -19,7 +19,7 @@ import re
 import traceback
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, Sequence
 
 import jinja2
 import yaml
@@ -28,14 +28,14 @@ from rosdeploy import restarts, rotation
 from rosdeploy.checks import host_problem, parse_env
 from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError, shown
-from rosdeploy.files import FileRenderer
+from rosdeploy.files import FILES_DIR, FileRenderer
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
 from rosdeploy.inventory.templating import secret_read, secret_reads
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
 from rosdeploy.sandbox import (ContainedLoader, Layered, Sandbox, ShippedSandbox, describe, render_value,
                                shipped_cache,
                                value_template)
-from rosdeploy.yamlsrc import Doc
+from rosdeploy.yamlsrc import Doc, Unsafe
 
 # rosdeploy/templates is a link to the repo's top-level templates/ in a checkout, and a real
 # directory in an installed wheel (setuptools copies what the link points at).
@@ -100,6 +100,21 @@ TUNABLES: dict[str, tuple[Any, Any, str]] = {
 
 class _Rejected(ValueError):
     """A value no quoting can carry safely into the file (raised inside filters)."""
+
+
+class _OnlyInEnv(Sequence[tuple[str, str]]):
+    """The `secrets` of a template that renders anything but .env: how many there are, never their
+    values. A value read here would reach a file that is not secret, in any form (`value|reverse`)."""
+
+    def __init__(self, secrets: Sequence[tuple[str, str]]) -> None:
+        self._count = len(secrets)
+
+    def __len__(self) -> int:
+        return self._count
+
+    def __getitem__(self, index: Any) -> Any:
+        raise _Rejected("`secrets` holds the vault values that go to .env, and only env.j2 may read them: "
+                        "for the names, read the service's `secrets` (as compose.yml.j2 does)")
 
 
 # ------------------------------------------------------------------- filters
@@ -270,6 +285,19 @@ class _Dumper(getattr(yaml, "CSafeDumper", yaml.SafeDumper)):  # type: ignore[mi
         return True
 
 
+def _taken_names(builtin: Mapping[str, str]) -> dict[str, str]:
+    """Release names an extra template may not render to, and why: a second file of the same name
+    would replace rosdeploy's (or be replaced by it), and a file where the release has a folder
+    cannot be written at all."""
+    taken = {name: f"is written by rosdeploy into every release, from {template}: to replace it, name this "
+                   f"template {template}" for name, template in builtin.items()}
+    taken |= {name: "is written by rosdeploy into every release (version, digest, image ids): rename this template"
+              for name in RELEASE_METADATA}
+    taken |= {name: "is a folder of every release (stored and per-robot files): rename this template"
+              for name in (restarts.STORE, FILES_DIR)}
+    return taken
+
+
 def _escape_dollars(value: Any) -> Any:
     """`compose:` values are literal unless the service opts in: `$` -> `$$` in every string value."""
     if isinstance(value, dict):
@@ -347,7 +375,7 @@ class Renderer:
         outputs = {COMPOSE_FILE: "compose.yml.j2", ENV_FILE: "env.j2", self.dds_file: f"{self.dds_file}.j2",
                    LOGROTATE_FILE: "logrotate.conf.j2", UDEV_FILE: "udev.rules.j2",
                    ROTATION_FILE: "logrotate.cron.j2"}
-        outputs.update(self._user_only_templates(outputs.values()))
+        outputs.update(self._user_only_templates(outputs))
         self.templates = {out: self._compile(name) for out, name in sorted(outputs.items())}
         compose_file = self.templates[COMPOSE_FILE].filename or ""
         self.builtin_compose = Path(compose_file).resolve().parent == TEMPLATE_DIR.resolve()
@@ -392,18 +420,17 @@ class Renderer:
         path = self.override / name
         return path.is_symlink() or path.exists()    # a bad link is the sandbox loader's to refuse
 
-    def _user_only_templates(self, builtin: Iterable[str]) -> dict[str, str]:
+    def _user_only_templates(self, builtin: Mapping[str, str]) -> dict[str, str]:
         """Extra `NAME.j2` files in the override dir render to NAME (`_*.j2` are partials)."""
         if self.override is None:
             return {}
-        known = set(builtin) | {"fastdds.xml.j2", "cyclonedds.xml.j2"}
+        known = set(builtin.values()) | {"fastdds.xml.j2", "cyclonedds.xml.j2"}
         extra = {p.name[:-3]: p.name for p in sorted(self.override.glob("*.j2"))
                  if p.is_file() and p.name not in known and not p.name.startswith("_")}
-        taken = sorted(RELEASE_METADATA & set(extra))
-        if taken:     # the upload adds rosdeploy's own: a second member of that name in the release
-            raise RenderError([Problem(str(self.override / extra[name]), None, "",
-                                       f"{name} is written by rosdeploy into every release (version, digest, "
-                                       "image ids): rename this template") for name in taken])
+        problems = [Problem(str(self.override / extra[name]), None, "", f"{name} {why}")
+                    for name, why in sorted(_taken_names(builtin).items()) if name in extra]
+        if problems:
+            raise RenderError(problems)
         return extra
 
     def _compile(self, name: str) -> jinja2.Template:
@@ -429,7 +456,7 @@ class Renderer:
         for key, value in svc.environment.items():
             if not key or "=" in key or _LINE_BREAKS.search(key):
                 problems.append(self._problem(where + ("environment",), f"invalid variable name {shown(key)}"))
-            elif "{{" in str(value) or "{%" in str(value):
+            elif not isinstance(value, Unsafe) and ("{{" in str(value) or "{%" in str(value)):
                 try:
                     templated[key] = value_template(self.env, str(value))
                 except jinja2.TemplateSyntaxError as exc:
@@ -542,6 +569,10 @@ class Renderer:
             where = ("services", svc.name, "environment", key)
             with secret_reads() as secret:
                 env[key] = self._render_value(template, host, variables, where, problems)
+            if "\0" in env[key]:     # execve's strings end at a NUL: no environment can hold one
+                problems.append(self._problem(where, f"robot {shown(host.name)}: this value comes out with a NUL "
+                                                     "byte, which no environment variable can hold: fix the "
+                                                     "inventory value or the expression"))
             if secret:
                 derived.add(key)
                 problems.append(self._problem(where, f"robot {shown(host.name)}: this value reads "
@@ -684,6 +715,8 @@ class Renderer:
         return out
 
     def _file(self, out: str, template: jinja2.Template, context: Mapping[str, Any], host: Host) -> RenderedFile:
+        if out != ENV_FILE:
+            context = {**context, "secrets": _OnlyInEnv(context["secrets"])}
         try:
             with secret_reads() as secret:
                 content = template.render(context)

@@ -243,6 +243,11 @@ class _BoundedCodeGenerator(CodeGenerator):
         self.write(", context)")
 
 
+# Attributes no template reads: `host.secret_values` holds every vault value of the robot as text,
+# where reading a vault var is tracked (and refused outside .env).
+HIDDEN = frozenset({"secret_values"})
+
+
 class _PlainReads(ImmutableSandboxedEnvironment):
     """Jinja's immutable sandbox, reading the public fields of `plain_types` without its
     per-access checks: frozen dataclasses of plain values, whose public fields templates read
@@ -252,12 +257,15 @@ class _PlainReads(ImmutableSandboxedEnvironment):
     plain_types: frozenset[type] = frozenset()
 
     def getattr(self, obj: Any, attribute: str) -> Any:
-        if type(obj) in self.plain_types and not attribute.startswith("_"):
+        if type(obj) in self.plain_types and not attribute.startswith("_") and attribute not in HIDDEN:
             try:
                 return getattr(obj, attribute)
             except AttributeError:
                 pass
         return super().getattr(obj, attribute)
+
+    def is_safe_attribute(self, obj: Any, attr: str, value: Any) -> bool:
+        return attr not in HIDDEN and super().is_safe_attribute(obj, attr, value)
 
     # Parsing, code generation and Python's compile() all recurse once per nesting level: a
     # value like `{{ [[[[...1]]]] }}` 1,000 deep is a syntax error of the value, not a crash.

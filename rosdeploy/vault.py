@@ -312,6 +312,22 @@ class Vault:
         return self._passwords[0][1] if 0 in self._passwords else ""
 
     @property
+    def password_files(self) -> tuple[str, ...]:
+        """The password files this vault may read (an inventory must not read them as inventory)."""
+        files = [self._password_file, self._env.get(ENV_PASSWORD_FILE)]
+        files += [i.source for i in self._ids if i.source != "prompt"]
+        return tuple(os.path.expanduser(f) for f in files if f)
+
+    def known_passwords(self) -> tuple[str, ...]:
+        """Every password read so far, and the environment's: text for output to mask. A password
+        is never a value to print, and an error may quote one (a password file read as inventory
+        or as a --limit file)."""
+        with self._lock:
+            read = [password for password, _ in self._passwords.values()]
+        read.append(self._env.get(ENV_PASSWORD, "").rstrip("\r\n").encode())
+        return tuple(p.decode("utf-8", "replace") for p in read if p)
+
+    @property
     def labels(self) -> tuple[str, ...]:
         """The labels of the vault ids, the first one encrypts; ("default",) without ids."""
         return tuple(i.label for i in self._ids) or ("default",)

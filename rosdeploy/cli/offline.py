@@ -7,13 +7,12 @@
 from __future__ import annotations
 
 import argparse
-import getpass
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from rosdeploy.cli.common import add_command, add_fleet_args, inventory_targets, path_arg
-from rosdeploy.cli.vault import vault_from_args
+from rosdeploy.cli.vault import load_masked
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
 from rosdeploy.output import Output
 
@@ -51,11 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _load(args: argparse.Namespace, out: Output) -> tuple[Any, tuple[Host, ...]]:
-    from rosdeploy.project import load_project
-
-    project = load_project(args.fleet, inventory=args.inventory, version=args.release_version,
-                           vault=vault_from_args(args, getpass.getpass if out.can_ask else None))
-    out.mask(project.secret_values)
+    project = load_masked(args, out, args.release_version)
     return project, inventory_targets(project, args.limit, out)
 
 

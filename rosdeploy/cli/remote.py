@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 from rosdeploy.cli import images
 from rosdeploy.cli.common import (INTERRUPTED_RUN, Parser, add_command, add_fleet_args, duration, fail_limit,
                                   group_prefix, inventory_targets, positive_int, release_word, waves)
-from rosdeploy.cli.vault import vault_from_args
+from rosdeploy.cli.vault import load_masked
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
                               EXIT_PARTIAL, InputError)
 from rosdeploy.output import Output, confirm
@@ -125,15 +125,13 @@ def load(args: argparse.Namespace, out: Output, render: bool = True,
     `render=False` (rollback): the releases kept on the robots are what runs, so neither the time
     to render nor a template error in what would be deployed next may hold up going back.
     `on_targets`: called once the targets are known, before rendering (apply's early connections)."""
-    from rosdeploy.project import deployable, load_project
+    from rosdeploy.project import deployable
 
-    project = load_project(args.fleet, inventory=args.inventory, version=getattr(args, "release_version", None),
-                           vault=vault_from_args(args, getpass.getpass if out.can_ask else None))
+    project = load_masked(args, out, getattr(args, "release_version", None))
     hosts = inventory_targets(project, args.limit, out)
     if getattr(args, "pick_up", False):     # apply: robots still pending for this fleet file and version
         from rosdeploy.cli import pending as pending_cli
         hosts = pending_cli.with_pending(project, hosts, out)
-    out.mask(project.secret_values)
     on_targets(project, hosts)
     if not render:
         return project, hosts, {}

@@ -8,11 +8,15 @@ import re
 import shlex
 import subprocess
 import sys
+from typing import TYPE_CHECKING
 
 from rosdeploy import vault as vaultlib
 from rosdeploy.cli.common import add_command, path_arg
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem, VaultError, shown
 from rosdeploy.output import Output
+
+if TYPE_CHECKING:
+    from rosdeploy.project import Project
 
 
 CODES = (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL)   # a wrong password or a damaged file is an input error
@@ -65,6 +69,20 @@ def add_vault_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vault-id", dest="vault_ids", action="append", default=[], metavar="LABEL@FILE",
                         help="a vault id as in Ansible: LABEL@FILE, LABEL@prompt or FILE; repeat it for "
                              "files encrypted with different passwords (the first one encrypts)")
+
+
+def load_masked(args: argparse.Namespace, out: Output, version: str | None) -> Project:
+    """The fleet file and inventory of `args`, decrypted with their vault. From here on `out` masks
+    every vault password and value, in the error of a load that fails too."""
+    from rosdeploy.project import load_project
+
+    vault = vault_from_args(args, getpass.getpass if out.can_ask else None)
+    try:
+        project = load_project(args.fleet, inventory=args.inventory, version=version, vault=vault)
+    finally:
+        out.mask(vault.known_passwords())
+    out.mask(project.secret_values)
+    return project
 
 
 def vault_from_args(args: argparse.Namespace, prompt: vaultlib.Prompt | None = None) -> vaultlib.Vault:

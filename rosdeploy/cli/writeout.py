@@ -129,12 +129,23 @@ def _renamed_whole(stage: str, root: Path) -> bool:
 def _move_into_place(stage: str, root: Path, names: Iterable[str]) -> None:
     """A robot's folder moves in one rename; over an existing folder, file by file (what else is there stays)."""
     for name in names:
-        source, target = os.path.join(stage, name), os.path.join(root, name)
-        if not os.path.lexists(target):
-            os.rename(source, target)
-            continue
-        for folder, _, files in os.walk(source):
-            into = os.path.join(target, os.path.relpath(folder, source))
-            os.makedirs(into, exist_ok=True)
-            for file in files:
-                os.replace(os.path.join(folder, file), os.path.join(into, file))
+        _merge(os.path.join(stage, name), os.path.join(root, name))
+
+
+def _merge(source: str, target: str) -> None:
+    """`source` at `target`, never through a symbolic link to a folder (`--out/robot1 -> inventory/
+    host_vars/robot1` had the release written into the inventory): such a link, like a file where
+    the release has a folder, is the user's to remove. A link where the release has a file is
+    replaced, as the file would be."""
+    if os.path.islink(target) or (os.path.lexists(target) and not os.path.isdir(target)):
+        what = "a symbolic link, which render does not write through" if os.path.islink(target) else "File exists"
+        raise OSError(errno.EEXIST, what, target)
+    if not os.path.lexists(target):
+        os.rename(source, target)
+        return
+    for entry in os.scandir(source):
+        inside = os.path.join(target, entry.name)
+        if entry.is_dir(follow_symlinks=False):
+            _merge(entry.path, inside)
+        else:
+            os.replace(entry.path, inside)

@@ -1,6 +1,7 @@
 """Finding the inventory files (a file or a directory of them) and reading them, vault included."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, Callable
 
@@ -121,7 +122,15 @@ def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
         draft.problems.append(Problem(str(root), None, "", "inventory not found: check -i / the fleet "
                                                            "file's `inventory:` path"))
         return root
+    passwords = _same_files(reader.vault.password_files)
     for path in files:
+        if _same_file(path) in passwords:
+            # never read: Ansible would take the password for a host name, and print it
+            draft.problems.append(Problem(str(path), None, "", "this is the vault password file, not an inventory: "
+                                          + ("move it out of the inventory folder, where every file is read as "
+                                             "inventory" if path != root else "check -i / the fleet file's "
+                                             "`inventory:`")))
+            continue
         if is_script(path):
             parse_script(path, draft)
             continue
@@ -137,6 +146,18 @@ def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
             parse_ini(path, read[0], read[1], draft)
     check_undeclared(draft)
     return base
+
+
+def _same_file(path: Path | str) -> tuple[int, int] | None:
+    try:
+        found = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return found.st_dev, found.st_ino
+
+
+def _same_files(paths: tuple[str, ...]) -> set[tuple[int, int]]:
+    return {key for key in map(_same_file, paths) if key is not None}
 
 
 def _parse_ini_or_skip(path: Path, read: tuple[str, bool], draft: Draft) -> None:

@@ -545,14 +545,24 @@ def test_hashed_and_bracketed_entries_still_verify(keys: dict, tmp_path: Path) -
     assert known.keys.lookup("amr2") is None
 
 
-@pytest.mark.parametrize("name", ["manifest.json", "images.txt"])
-def test_a_template_cannot_take_the_name_of_the_releases_own_metadata(capsys: pytest.CaptureFixture, lab: Path,
-                                                                      name: str) -> None:
+@pytest.mark.parametrize("name, why", [
     # deploy._tarball adds its own: the release would carry two members of that name
+    ("manifest.json", "is written by rosdeploy into every release (version"),
+    ("images.txt", "is written by rosdeploy into every release (version"),
+    # a built-in output under another template's name: one of the two was silently dropped
+    (".env", "is written by rosdeploy into every release, from env.j2: to replace it, name this template env.j2"),
+    ("99-rosdeploy.rules", "is written by rosdeploy into every release, from udev.rules.j2: to replace it, "
+                           "name this template udev.rules.j2"),
+    # the release's folders: validate said OK, and render failed on "--out: Not a directory"
+    ("store", "is a folder of every release"),
+    ("files", "is a folder of every release"),
+])
+def test_a_template_cannot_take_a_name_the_release_already_has(capsys: pytest.CaptureFixture, lab: Path,
+                                                               name: str, why: str) -> None:
     (lab / "templates").mkdir()
     (lab / "templates" / f"{name}.j2").write_text("{}\n")
     edit(lab, lambda d: d.update(templates="./templates"))
-    refused_everywhere(capsys, lab, f"{name}.j2", f"{name} is written by rosdeploy into every release")
+    refused_everywhere(capsys, lab, f"templates/{name}.j2: {name} {why}")
     assert not (lab / "out").exists()
 
 

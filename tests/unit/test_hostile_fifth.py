@@ -1,0 +1,210 @@
+"""Fifth hostile-input audit (issue #18): each case crashed, was let through, or leaked.
+
+1. A `files: {var: ...}` var holding an `!unsafe` string: an internal error (yaml could not
+   write the str subclass). Now its text is written, untemplated.
+2. The vault password: a password file inside the inventory folder was read as an INI
+   inventory and the password printed as a robot name; `--limit @PASSWORD_FILE` printed it too.
+   Now that file is refused unread, and every vault password is masked like vault values.
+3. `ros_domain_id:` with no value became domain 0 silently; `rosdeploy_ros_domain_id` alone was
+   called missing.
+4. A NUL byte in an environment value that comes out of an expression or an inventory var went
+   into compose.yml (the literal one was refused).
+5. `render --out DIR` wrote through a symbolic link DIR/<robot> (into the inventory, say); now
+   refused, as a file there already was.
+6. A template read the vault values through the context's `secrets` or `host.secret_values`,
+   untracked, into a file that is not secret.
+7. `!unsafe` in the fleet file was accepted and then templated anyway.
+(Extra templates named like a release's folders or its built-in files: test_hostile.py.)
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+
+from rosdeploy.cli import main
+from test_hostile import LAB_SECRET, cli, edit, lab, refused_everywhere, set_env
+
+__all__ = ["lab"]   # the fixture: tests/unit/data/fleet copied, its vault password in place
+
+
+def password_of(lab: Path) -> str:
+    return (lab / "inventory" / ".vault-password").read_text().strip()
+
+
+def run(capsys: pytest.CaptureFixture, *argv: str) -> tuple[int, str]:
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, captured.out + captured.err
+
+
+# ------------------------------------------------------------------ 1. !unsafe in a files var
+
+def test_a_files_var_holding_an_unsafe_string_is_written_as_its_text(capsys: pytest.CaptureFixture,
+                                                                       lab: Path) -> None:
+    (lab / "inventory" / "host_vars" / "r1.yml").write_text(
+        'calib:\n  fx: 1.5\n  name: !unsafe "{{ not templated }}"\n')
+    (lab / "inventory" / "host_vars" / "r2.yml").write_text("calib: {fx: 2.5}\n")
+
+    def files(d: dict) -> None:
+        d["files"] = {"calib": {"var": "calib", "target": "/config/calib.yaml"}}
+        d["services"]["driver"]["files"] = ["calib"]
+    edit(lab, files)
+    for command in ("validate", "check", "render"):
+        code, text = cli(capsys, lab, command)
+        assert code == 0, (command, text)
+    written = yaml.safe_load((lab / "out" / "r1" / "files" / "calib").read_text())
+    assert written == {"fx": 1.5, "name": "{{ not templated }}"}
+
+
+# ------------------------------------------------------------------ 2. the vault password
+
+def test_a_password_file_inside_the_inventory_folder_is_refused_unread(capsys: pytest.CaptureFixture,
+                                                                        lab: Path) -> None:
+    inside = lab / "inventory" / "vault_pass"    # not hidden: the inventory reads it as INI
+    inside.write_text(password_of(lab) + "\n")
+    for command in ("validate", "check", "render"):
+        code, text = run(capsys, command, str(lab / "fleet.yml"), "--vault-password-file", str(inside),
+                         "--out", str(lab / "out")) if command == "render" else \
+            run(capsys, command, str(lab / "fleet.yml"), "--vault-password-file", str(inside))
+        assert code == 2, (command, text)
+        assert f"{inside}: this is the vault password file, not an inventory: move it out of the inventory " \
+               "folder" in text, text
+        assert password_of(lab) not in text and "Traceback" not in text
+        assert not (lab / "out").exists()
+
+
+def test_a_password_file_given_as_the_inventory_is_refused_unread(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    password = lab / "pass"
+    password.write_text(password_of(lab) + "\n")
+    code, text = run(capsys, "validate", str(lab / "fleet.yml"), "-i", str(password),
+                     "--vault-password-file", str(password))
+    assert code == 2 and f"{password}: this is the vault password file, not an inventory" in text, text
+    assert password_of(lab) not in text
+
+
+@pytest.mark.parametrize("how", ["limit file", "environment"])
+def test_the_vault_password_is_masked_in_messages(capsys: pytest.CaptureFixture, lab: Path,
+                                                  monkeypatch: pytest.MonkeyPatch, how: str) -> None:
+    secret = password_of(lab)
+    if how == "limit file":   # a mistake: the password file given as Ansible's `--limit @FILE`
+        argv = ["--vault-password-file", str(lab / "inventory" / ".vault-password"),
+                "--limit", f"@{lab / 'inventory' / '.vault-password'}"]
+    else:                     # the password in the environment, typed as a pattern
+        monkeypatch.setenv("ROSDEPLOY_VAULT_PASSWORD", secret)
+        argv = ["--limit", secret]
+    code, text = run(capsys, "validate", str(lab / "fleet.yml"), *argv)
+    assert code == 2 and "selects no robot" in text and "'********'" in text, text
+    assert secret not in text
+
+
+# ------------------------------------------------------------------ 3. ros_domain_id
+
+@pytest.mark.parametrize("value", ["", "~", "null"])
+def test_a_domain_id_with_no_value_is_missing(capsys: pytest.CaptureFixture, lab: Path, value: str) -> None:
+    hosts = lab / "inventory" / "hosts.yml"
+    hosts.write_text(hosts.read_text().replace("ros_domain_id: 1", f"ros_domain_id: {value}"))
+    refused_everywhere(capsys, lab, "hosts.yml:", "'r1' declares no ros_domain_id")
+
+
+def test_the_prefixed_domain_id_alone_declares_it(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    hosts = lab / "inventory" / "hosts.yml"
+    hosts.write_text(hosts.read_text().replace("ros_domain_id: 2", "rosdeploy_ros_domain_id: 7"))
+    code, text = cli(capsys, lab, "render")
+    assert code == 0, text
+    assert "ROS_DOMAIN_ID=7" in (lab / "out" / "r2" / ".env").read_text()
+
+
+# ------------------------------------------------------------------ 4. NUL in an environment value
+
+@pytest.mark.parametrize("source", ["expression", "inventory var"])
+def test_a_nul_that_comes_out_of_a_template_is_refused(capsys: pytest.CaptureFixture, lab: Path,
+                                                       source: str) -> None:
+    if source == "expression":
+        edit(lab, set_env("{{ 'north' ~ '\\x00' ~ 'hall' }}"))
+    else:
+        (lab / "inventory" / "host_vars" / "r1.yml").write_text('site: "north\\0hall"\n')
+        (lab / "inventory" / "host_vars" / "r2.yml").write_text("site: south\n")
+        edit(lab, set_env("{{ site }}"))
+    refused_everywhere(capsys, lab, "fleet.yml:", "services.driver.environment.X: robot 'r1': this value comes "
+                                                  "out with a NUL byte")
+
+
+# ------------------------------------------------------------------ 5. links inside --out
+
+@pytest.mark.parametrize("link", ["r1", "r1/store"])
+def test_render_does_not_write_through_a_link_to_a_folder(capsys: pytest.CaptureFixture, lab: Path,
+                                                          link: str) -> None:
+    out, elsewhere = lab / "out", lab / "inventory" / "host_vars"
+    (out / "r1").mkdir(parents=True, exist_ok=True)
+    if link == "r1":
+        (out / "r1").rmdir()
+    (out / link).symlink_to(elsewhere)
+    before = sorted(os.listdir(elsewhere))
+    code, text = cli(capsys, lab, "render")
+    assert code == 2, text
+    assert f"{out / link}: --out: cannot write there (a symbolic link, which render does not write through)" in text
+    assert sorted(os.listdir(elsewhere)) == before
+    assert not any(p.name.startswith(".rosdeploy-render-") for p in out.iterdir())
+
+
+def test_render_replaces_a_link_where_a_file_goes(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    out, elsewhere = lab / "out", lab / "elsewhere"
+    (out / "r2").mkdir(parents=True)
+    elsewhere.mkdir()
+    (elsewhere / "compose.yml").write_text("theirs\n")
+    (out / "r2" / "compose.yml").symlink_to(elsewhere / "compose.yml")
+    (out / "r2" / "notes.txt").write_text("kept\n")
+    code, text = cli(capsys, lab, "render")
+    assert code == 0, text
+    assert (elsewhere / "compose.yml").read_text() == "theirs\n"
+    assert not (out / "r2" / "compose.yml").is_symlink() and "services:" in (out / "r2" / "compose.yml").read_text()
+    assert (out / "r2" / "notes.txt").read_text() == "kept\n"
+
+
+# ------------------------------------------------------------------ 6. vault values through the context
+
+@pytest.mark.parametrize("template, expect", [
+    ("{% for name, value in secrets %}{{ value | reverse }}{% endfor %}\n",
+     "`secrets` holds the vault values that go to .env, and only env.j2 may read them"),
+    ("{{ secrets[0][1] | list | join(' ') }}\n", "only env.j2 may read them"),
+    ("{{ host.secret_values | list | first | replace('-', '_') }}\n", "secret_values"),
+    ("{{ host | attr('secret_values') | list }}\n", "secret_values"),
+    ("{{ host['secret_values'] | list }}\n", "secret_values"),
+])
+def test_a_template_cannot_read_vault_values_untracked(capsys: pytest.CaptureFixture, lab: Path,
+                                                       template: str, expect: str) -> None:
+    (lab / "templates").mkdir()
+    (lab / "templates" / "leak.txt.j2").write_text(template)
+    edit(lab, lambda d: d.update(templates="./templates"))
+    refused_everywhere(capsys, lab, "templates/leak.txt.j2:1: robot 'r1': ", expect)
+
+
+def test_a_template_may_count_the_secrets_and_env_j2_still_writes_them(capsys: pytest.CaptureFixture,
+                                                                         lab: Path) -> None:
+    (lab / "templates").mkdir()
+    (lab / "templates" / "count.txt.j2").write_text("{{ secrets | length }} secret(s)\n")
+    edit(lab, lambda d: d.update(templates="./templates"))
+    code, text = cli(capsys, lab, "render")
+    assert code == 0, text
+    assert (lab / "out" / "r1" / "count.txt").read_text() == "1 secret(s)\n"
+    assert f"API_TOKEN={LAB_SECRET}" in (lab / "out" / "r1" / ".env").read_text()
+
+
+def test_a_fleet_value_cannot_read_host_secret_values(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    edit(lab, set_env("{{ host.secret_values | list | first | reverse }}"))
+    refused_everywhere(capsys, lab, "fleet.yml:", "services.driver.environment.X: robot 'r1': ", "secret_values")
+
+
+# ------------------------------------------------------------------ 7. !unsafe in the fleet file
+
+def test_an_unsafe_fleet_value_is_not_templated(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    fleet = lab / "fleet.yml"
+    fleet.write_text(fleet.read_text().replace("    image: lab/driver\n", '    image: lab/driver\n'
+                                               '    environment: {RAW: !unsafe "{{ 1 + 1 }}", SUM: "{{ 1 + 1 }}"}\n'))
+    code, text = cli(capsys, lab, "render")
+    assert code == 0, text
+    env = yaml.safe_load((lab / "out" / "r1" / "compose.yml").read_text())["services"]["driver"]["environment"]
+    assert env["RAW"] == "{{ 1 + 1 }}" and env["SUM"] == "2"
