@@ -475,6 +475,11 @@ def _registry(r: Reader, kp: KeyPath, value: Any) -> Any:
     port = re.match(r"[^/]*:([0-9]+)", value)
     if port and not 0 < int(port[1]) < 65536:
         raise Invalid(f"{shown(value)}: port {port[1]} is not a TCP port (1-65535)")
+    if not _has_registry_host(value + "/image"):
+        host = value.partition("/")[0]
+        raise Invalid(f"{shown(host)} has no `.` or port and is not localhost, so Docker reads it as a Docker "
+                      f"Hub account, not a registry: write the registry's full name or its port, e.g. "
+                      f"{host}.local or {host}:5000")
     return value
 
 
@@ -506,13 +511,16 @@ def _image(r: Reader, kp: KeyPath, value: Any) -> Any:
 def _rate(r: Reader, kp: KeyPath, value: Any) -> Any:
     try:
         return parse_rate(value)
-    except ValueError:
-        raise Invalid(f"{shown(value)} is not a rate: write bytes per second, e.g. 2MB/s or 500kB/s") from None
+    except ValueError as exc:
+        why = "it is bits per second" if "bits" in str(exc) else "it is not a rate"
+        raise Invalid(f"{shown(value)}: {why}: write bytes per second from 1kB/s up, e.g. 2MB/s or "
+                      "500kB/s") from None
 
 
 def _controller_registry(r: Reader, kp: KeyPath, value: Any) -> Any:
     value = _string()(r, kp, value)
-    if not REGISTRY_RE.fullmatch(value.split("://", 1)[-1]):
+    scheme, sep, address = value.rpartition("://")
+    if (sep and scheme not in ("http", "https")) or not REGISTRY_RE.fullmatch(address):
         raise Invalid(f"{shown(value)} is not a registry address: write host[:port], optionally after "
                       "http:// or https://, e.g. http://127.0.0.1:5000")
     return value
@@ -712,7 +720,7 @@ def _log_size(r: Reader, kp: KeyPath, value: Any) -> Any:
 def _waves(r: Reader, kp: KeyPath, value: Any) -> Any:
     """Cumulative wave targets: at least one, never shrinking (counts and percents each)."""
     waves = _listof(_wave, "waves")(r, kp, value)
-    problem = wave_order(waves)
+    problem = wave_order(tuple(dict.fromkeys(waves)))    # a wave listed twice: _listof said so at its line
     if problem:
         raise Invalid(problem)
     return waves
@@ -722,6 +730,9 @@ def wave_order(waves: Sequence[int | str]) -> str | None:
     """Why these wave targets are no rollout (none, or one shrinking), or None; for --waves too."""
     if not waves:
         return 'name at least one wave, e.g. [1, "100%"]'
+    twice = next((w for i, w in enumerate(waves) if w in waves[:i]), None)
+    if twice is not None:
+        return f"{shown(twice)} is listed twice; keep one"
     for kind in (int, str):
         sizes = [int(w) if isinstance(w, int) else int(w[:-1]) for w in waves if isinstance(w, kind)]
         if sizes != sorted(sizes):
@@ -977,11 +988,24 @@ def _check_services(r: Reader, top: dict) -> None:
         r.error(("services",), "declares no service: add at least one, e.g. `driver: {image: acme/amr-driver}`")
     for name, svc in services.items():
         _check_service(r, ("services", name), svc, names, top.get("registry"))
-    probe = top.get("health", {}).get("probe_service") if isinstance(top.get("health"), dict) else None
+    health: dict = top["health"] if isinstance(top.get("health"), dict) else {}
+    probe = health.get("probe_service")
     if isinstance(probe, str) and probe not in names:
         r.error(("health", "probe_service"), f"no service is named `{probe}`{_did_you_mean(probe, names)}")
+    _check_gate_can_pass(r, health)
     _check_cycles(r, services)
     _check_file_refs(r, services, top.get("files"))
+
+
+def _check_gate_can_pass(r: Reader, health: dict) -> None:
+    """`stable` and `timeout` both count from the switch: a stable window as long as the whole gate
+    fails every deploy, and rolls it back."""
+    stable, timeout = (health.get(k, getattr(HealthPolicy, k)) for k in ("stable", "timeout"))
+    numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (stable, timeout))
+    if numbers and stable >= timeout:
+        r.error(("health", "stable" if "stable" in health else "timeout"),
+                f"health.stable ({stable:g} s) is not shorter than health.timeout ({timeout:g} s), which counts "
+                "from the switch too: no release could pass the gate; make stable shorter than timeout")
 
 
 def _check_service(r: Reader, kp: KeyPath, svc: dict, names: list[str], registry: Any) -> None:
@@ -1138,9 +1162,10 @@ def _robot_file(r: Reader, kp: KeyPath, value: Any) -> Any:
     if "target" not in d:   # reported as missing (or a key near it suggested)
         raise Invalid()
     target = d["target"]
-    if not ABSOLUTE_PATH_RE.fullmatch(target) or ".." in target.split("/") or target.endswith("/"):
-        raise Invalid(f"{shown(target)} must be an absolute file path in the container, "
-                      "e.g. /config/params.yaml", ("target",))
+    # plainly written: its last name is the file's name in the release (`/etc/.` would be `.`)
+    if not ABSOLUTE_PATH_RE.fullmatch(target) or target != normal_path(target) or target == "/":
+        raise Invalid(f"{shown(target)} must be an absolute file path in the container, written without "
+                      "`.`, `..`, `//` or a trailing `/`, e.g. /config/params.yaml", ("target",))
     if len(target) > 4096 or max(map(len, target.split("/"))) > 255:
         # its name is a file of the release (store/<digest>/<name>): render would fail to write it
         raise Invalid(f"a path of {len(target)} characters: Linux allows 4096, and 255 for each name in it; "

@@ -642,6 +642,11 @@ class Renderer:
             key = ("services", service, "secrets", name)
             if name in reserved:
                 problems.append(self._problem(key, f"{name} is a variable rosdeploy writes to .env itself"))
+            elif name.startswith(("COMPOSE_", "DOCKER_")):
+                # compose reads its own settings from .env: COMPOSE_FILE, COMPOSE_PROFILES, DOCKER_HOST…
+                problems.append(self._problem(key, f"{name} in .env is a setting of docker compose itself "
+                                                   "(which file, profiles, engine), not the service's: "
+                                                   "choose another name"))
             elif var not in host.vars:
                 problems.append(_host_problem(host, var, f"service {service} reads secret {name} from var "
                                                          f"{shown(var)}, which is not defined for this robot"))

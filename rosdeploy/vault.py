@@ -538,16 +538,18 @@ def encrypt_string(value: str, vault: Vault, name: str, ansible_format: bool = F
 
 
 def write_private(path: str, data: bytes) -> None:
-    """Replace `path` atomically (temp file + rename in the same directory), mode 0600."""
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, temp = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
+    """Replace `path` atomically (temp file + rename in the same directory), mode 0600. A symbolic
+    link is followed, as ansible-vault does: replacing the link itself left the file it points to
+    in plaintext."""
+    real = os.path.realpath(path)
+    fd, temp = tempfile.mkstemp(dir=os.path.dirname(real), prefix=f".{os.path.basename(real)}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
             handle.flush()
             os.fsync(handle.fileno())
         os.chmod(temp, 0o600)
-        os.replace(temp, path)
+        os.replace(temp, real)
     except OSError as exc:
         with contextlib.suppress(OSError):
             os.unlink(temp)

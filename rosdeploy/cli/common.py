@@ -153,12 +153,14 @@ def group_prefix(text: str) -> str:
 
 
 def positive_int(text: str) -> int:
+    """A count from 1 up to the fleet file's bound for counts (2**31 - 1: more is a typo)."""
+    from rosdeploy.fleet import MAX_COUNT
     try:
         value = int(text)
     except ValueError:
         value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{shown(text)} is not a whole number of at least 1")
+    if not 1 <= value <= MAX_COUNT:
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a whole number from 1 to {MAX_COUNT}")
     return value
 
 

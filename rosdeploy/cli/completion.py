@@ -37,7 +37,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_completion(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.cli import build_parser
 
-    out.line(script(build_parser(), args.shell).rstrip("\n"))
+    text = script(build_parser(), args.shell)
+    if out.as_json:
+        out.document({"ok": True, "shell": args.shell, "script": text})
+    else:
+        out.line(text.rstrip("\n"))
     return EXIT_OK
 
 

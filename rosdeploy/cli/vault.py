@@ -110,11 +110,14 @@ def _ansible_format(args: argparse.Namespace, near: str) -> bool:
 
 def _encrypt(args: argparse.Namespace, out: Output) -> int:
     vault = _vault(args, args.files[0], new_password=True)
+    done = []
     for path in args.files:
         ansible = _ansible_format(args, path)
         vaultlib.encrypt_file(path, vault, ansible_format=ansible, label=args.encrypt_vault_id)
-        out.line(f"encrypted {path}" + (" (Ansible's format: ansible-vault reads it)" if ansible else ""))
-    return 0
+        done.append({"file": path, "format": "ansible" if ansible else "rosdeploy"})
+        if not out.as_json:
+            out.line(f"encrypted {path}" + (" (Ansible's format: ansible-vault reads it)" if ansible else ""))
+    return _done(out, {"encrypted": done})
 
 
 def _encrypt_string(args: argparse.Namespace, out: Output) -> int:
@@ -128,23 +131,27 @@ def _encrypt_string(args: argparse.Namespace, out: Output) -> int:
         raise VaultError([Problem("--name", None, "", "nothing to encrypt: give VALUE or pipe it in")])
     vault = _vault(args, args.name, new_password=True)
     ansible = _ansible_format(args, os.getcwd())
-    out.line(vaultlib.encrypt_string(value, vault, args.name, ansible_format=ansible,
-                                     label=args.encrypt_vault_id).rstrip("\n"))
-    return 0
+    text = vaultlib.encrypt_string(value, vault, args.name, ansible_format=ansible,
+                                   label=args.encrypt_vault_id).rstrip("\n")
+    if not out.as_json:
+        out.line(text)
+    return _done(out, {"name": args.name, "yaml": text + "\n", "format": "ansible" if ansible else "rosdeploy"})
 
 
 def _decrypt(args: argparse.Namespace, out: Output) -> int:
     vault = _vault(args, args.files[0])
     for path in args.files:
         vaultlib.decrypt_file(path, vault)
-        out.line(f"decrypted {path} (plaintext now: keep it out of version control)")
-    return 0
+        if not out.as_json:
+            out.line(f"decrypted {path} (plaintext now: keep it out of version control)")
+    return _done(out, {"decrypted": list(args.files)})
 
 
 def _view(args: argparse.Namespace, out: Output) -> int:
-    plaintext = vaultlib.view_file(args.files[0], _vault(args, args.files[0]))
-    out.line(plaintext.decode("utf-8", "replace").rstrip("\n"))
-    return 0
+    text = vaultlib.view_file(args.files[0], _vault(args, args.files[0])).decode("utf-8", "replace")
+    if not out.as_json:
+        out.line(text.rstrip("\n"))
+    return _done(out, {"file": args.files[0], "plaintext": text})
 
 
 def _edit(args: argparse.Namespace, out: Output) -> int:
@@ -152,8 +159,16 @@ def _edit(args: argparse.Namespace, out: Output) -> int:
     vault = _vault(args, path, new_password=not os.path.exists(path))
     changed = vaultlib.edit_file(path, vault, lambda temp: _run_editor(temp, path),
                                  ansible_format=_ansible_format(args, path))
-    out.line(f"saved {path}" if changed else f"no changes to {path}")
-    return 0
+    if not out.as_json:
+        out.line(f"saved {path}" if changed else f"no changes to {path}")
+    return _done(out, {"file": path, "changed": changed})
+
+
+def _done(out: Output, document: dict) -> int:
+    """With --json, the one document of a vault command that succeeded (its text went nowhere)."""
+    if out.as_json:
+        out.document({"ok": True, **document})
+    return EXIT_OK
 
 
 def _vault(args: argparse.Namespace, about: str, new_password: bool = False) -> vaultlib.Vault:

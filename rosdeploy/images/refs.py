@@ -11,7 +11,9 @@ import re
 from dataclasses import dataclass
 
 DIGEST_RE = re.compile(r"sha256:[0-9a-f]{64}")
-_RATE_RE = re.compile(r"\s*(\d+(?:\.\d+)?)\s*([kmg]?)(i?)b(?:/s|ps)\s*", re.IGNORECASE)
+# B is bytes, as in `2MB/s`; a lower-case b is bits (`2Mbps`), and refused: docs/images.md
+_RATE_RE = re.compile(r"\s*(\d+(?:\.\d+)?)\s*([kKmMgG]?)(i?)([bB])(?:/s|ps)\s*")
+MIN_RATE = 1000.0     # bytes/s: below 1 kB/s an image of 100 MB takes over a day
 
 
 @dataclass(frozen=True)
@@ -45,16 +47,21 @@ def split_ref(ref: str) -> tuple[str, str, str]:
 
 
 def parse_rate(text: str | int | float) -> float:
-    """`2MB/s`, `500kB/s`, `1.5MiB/s` (bytes, not bits) -> bytes per second; ValueError if not a rate."""
+    """`2MB/s`, `500kB/s`, `1.5MiB/s` (bytes, not bits) -> bytes per second, at least MIN_RATE;
+    ValueError (its message says why) if not such a rate."""
     if isinstance(text, (int, float)) and not isinstance(text, bool):
-        if text <= 0:
-            raise ValueError(text)
-        return float(text)
-    match = _RATE_RE.fullmatch(str(text))
-    if not match or float(match.group(1)) <= 0:
-        raise ValueError(text)
-    unit = 1024 if match.group(3) else 1000
-    return float(match.group(1)) * unit ** " kmg".index(match.group(2).lower() or " ")
+        rate = float(text)
+    else:
+        match = _RATE_RE.fullmatch(str(text))
+        if not match:
+            raise ValueError(f"{text!r} is not a rate")
+        if match.group(4) == "b":
+            raise ValueError(f"{text!r} is bits per second; write bytes (B), e.g. 250kB/s for 2Mbit/s")
+        unit = 1024 if match.group(3) else 1000
+        rate = float(match.group(1)) * unit ** " kmg".index(match.group(2).lower() or " ")
+    if not MIN_RATE <= rate < float("inf"):      # nan fails this too
+        raise ValueError(f"{text!r} is not a rate from 1kB/s up")
+    return rate
 
 
 def human_bytes(n: float) -> str:

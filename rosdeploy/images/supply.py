@@ -99,8 +99,8 @@ def check_vars(hosts: Iterable[Host]) -> list[str]:
             try:
                 parse_rate(rate)
             except ValueError:
-                problems.append(f"{host.source or host.name}: {host.name}: {RATE_VAR}: {shown(rate)} is not a rate: "
-                                "write e.g. 2MB/s or 500kB/s")
+                problems.append(f"{host.source or host.name}: {host.name}: {RATE_VAR}: {shown(rate)} is not a rate "
+                                "in bytes per second from 1kB/s up: write e.g. 2MB/s or 500kB/s")
     return problems
 
 

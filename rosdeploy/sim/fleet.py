@@ -17,7 +17,7 @@ from typing import Sequence
 
 import paramiko
 
-from rosdeploy.errors import SimError
+from rosdeploy.errors import InputError, Problem, SimError
 from rosdeploy.sim import registry
 from rosdeploy.sim.faults import heal
 from rosdeploy.sim.images import ensure_images, remove_images
@@ -65,7 +65,7 @@ def up(robots: int = 3, home: Path | str | None = None, progress: Progress | Non
     """Bring up (or complete) a fleet of `robots` robots; idempotent and incremental."""
     progress = progress or quiet
     if not 1 <= robots <= MAX_ROBOTS:
-        raise SimError(f"--robots must be between 1 and {MAX_ROBOTS}, not {robots}")
+        raise InputError([Problem("--robots", None, "", f"must be between 1 and {MAX_ROBOTS}, not {robots}")])
     require_engine()
     paths = SimPaths(resolve_home(home))
     paths.home.mkdir(parents=True, exist_ok=True)

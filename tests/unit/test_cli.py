@@ -286,6 +286,38 @@ def test_json_usage_errors_print_one_document(argv: list[str]) -> None:
     assert "usage:" not in done.stdout
 
 
+def test_vault_commands_and_completion_print_one_document_with_json(tmp_path: Path) -> None:
+    # they printed their text on stderr and nothing on stdout
+    env = {"ROSDEPLOY_VAULT_PASSWORD": "pw-123456"}
+    secrets = tmp_path / "s.yml"
+    secrets.write_text("k: v\n")
+    runs = {"encrypt": ["vault", "encrypt", str(secrets)], "view": ["vault", "view", str(secrets)],
+            "decrypt": ["vault", "decrypt", str(secrets)], "string": ["vault", "encrypt-string", "--name", "x", "v1"],
+            "completion": ["completion", "bash"]}
+    docs = {}
+    for name, argv in runs.items():
+        done = rosdeploy("--json", *argv, env=env)
+        assert done.returncode == 0 and done.stderr == "", (name, done.stderr)
+        docs[name] = one_document(done.stdout)
+        assert docs[name]["ok"] is True, docs[name]
+    assert docs["encrypt"]["encrypted"] == [{"file": str(secrets), "format": "rosdeploy"}]
+    assert docs["view"]["plaintext"] == "k: v\n" and docs["decrypt"]["decrypted"] == [str(secrets)]
+    assert docs["string"]["yaml"].startswith("x: !vault |") and docs["string"]["name"] == "x"
+    assert docs["completion"]["shell"] == "bash" and "complete" in docs["completion"]["script"]
+    assert secrets.read_text() == "k: v\n"
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["apply", "F", "--waves", "1,1"], "1 is listed twice; keep one"),      # the fleet file refused it, not --waves
+    (["apply", "F", "--forks", "99999999999999999999"], "is not a whole number from 1 to 2147483647"),
+    (["sim", "up", "--robots", "91"], "--robots: must be between 1 and 90, not 91"),   # was exit 3
+])
+def test_option_values_are_checked_as_the_fleet_file_checks_them(argv: list[str], words: str) -> None:
+    done = rosdeploy("--json", *argv)
+    assert done.returncode == EXIT_INPUT and words in done.stderr, done.stderr
+    assert one_document(done.stdout)["exit_code"] == EXIT_INPUT
+
+
 @pytest.mark.parametrize("argv, blamed", [(["rollback", "F", "--pause", "3s"], "rosdeploy rollback"),
                                           (["vault", "view", "x", "--bogus"], "rosdeploy vault view"),
                                           (["sim", "heal", "robot1", "--for", "2s"], "rosdeploy sim heal")])

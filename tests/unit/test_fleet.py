@@ -236,6 +236,20 @@ def test_inventory_expands_home_and_variables(fleet_dir: Path, monkeypatch: pyte
     ({"rollback": {"auto": "yes"}}, "rollback.auto", ["true or false"]),
     ({"vars": {"bad-name": 1}}, "vars.bad-name", ["not a valid template variable name"]),
     ({"services": ["driver"]}, "services", ["must be a mapping of service names"]),
+    # fifth hostile-input round (issue #18): each was accepted
+    ({"registry": "myregistry"}, "registry", ["Docker Hub account", "e.g. myregistry.local or myregistry:5000"]),
+    ({"registry": "myregistry/team"}, "registry", ["'myregistry' has no `.` or port"]),
+    ({"images": {"controller_registry": "htps://registry.example.com"}}, "images.controller_registry",
+     ["not a registry address", "http:// or https://"]),
+    ({"images": {"max_rate": float("nan")}}, "images.max_rate", ["not a rate", "from 1kB/s up"]),
+    ({"images": {"total_rate": float("inf")}}, "images.total_rate", ["not a rate"]),
+    ({"images": {"max_rate": "0.0000001B/s"}}, "images.max_rate", ["not a rate"]),
+    ({"images": {"max_rate": "2Mbps"}}, "images.max_rate", ["it is bits per second", "e.g. 2MB/s"]),
+    ({"health": {"timeout": "5s", "stable": "1h"}}, "health.stable",
+     ["health.stable (3600 s) is not shorter than health.timeout (5 s)", "no release could pass the gate"]),
+    ({"health": {"stable": "90s"}}, "health.stable", ["not shorter than health.timeout (90 s)"]),   # the default
+    ({"health": {"timeout": "5s"}}, "health.timeout", ["health.stable (5 s) is not shorter"]),        # the default
+    ({"rollout": {"waves": [1, 1]}}, "rollout.waves[1]", ["1 is listed twice"]),
 ])
 def test_top_level_values_are_checked(fleet_dir: Path, patch: dict, key: str, words: list[str]) -> None:
     one(fleet_dir, patch, key, *words)
@@ -514,6 +528,14 @@ def test_bad_volumes_name_the_entry_and_the_fix(fleet_dir: Path, volume: Any, wo
 def test_a_file_without_target_is_a_problem_not_a_crash(fleet_dir: Path) -> None:
     found = problems(fleet_dir, {"files": {"params": {"template": "params.yaml"}}})
     assert [(p.key, "required key missing" in p.message) for p in found] == [("files.params.target", True)], found
+
+
+@pytest.mark.parametrize("target", ["/", "/.", "/etc/.", "/config//params.yaml", "/config/./params.yaml",
+                                    "/config/params.yaml/"])
+def test_a_file_target_is_written_plainly(fleet_dir: Path, target: str) -> None:
+    # `/.` passed validate, and render failed on "--out: cannot write there (Is a directory)"
+    one(fleet_dir, {"files": {"params": {"copy": "params.yaml", "target": target}}}, "files.params.target",
+        "must be an absolute file path in the container, written without `.`, `..`, `//` or a trailing `/`")
 
 
 def test_a_ready_condition_with_a_newline_is_a_problem_not_a_crash(fleet_dir: Path) -> None:

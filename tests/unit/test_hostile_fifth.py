@@ -14,6 +14,8 @@
 6. A template read the vault values through the context's `secrets` or `host.secret_values`,
    untracked, into a file that is not secret.
 7. `!unsafe` in the fleet file was accepted and then templated anyway.
+8. A secret named COMPOSE_FILE, COMPOSE_PROFILES or DOCKER_HOST went into .env, where compose
+   reads its own settings.
 (Extra templates named like a release's folders or its built-in files: test_hostile.py.)
 """
 from __future__ import annotations
@@ -208,3 +210,14 @@ def test_an_unsafe_fleet_value_is_not_templated(capsys: pytest.CaptureFixture, l
     assert code == 0, text
     env = yaml.safe_load((lab / "out" / "r1" / "compose.yml").read_text())["services"]["driver"]["environment"]
     assert env["RAW"] == "{{ 1 + 1 }}" and env["SUM"] == "2"
+
+
+# ------------------------------------------------------------------ 8. compose's own settings in .env
+
+@pytest.mark.parametrize("name", ["COMPOSE_FILE", "COMPOSE_PROFILES", "DOCKER_HOST"])
+def test_a_secret_may_not_set_a_setting_of_compose_itself(capsys: pytest.CaptureFixture, lab: Path,
+                                                          name: str) -> None:
+    # .env is where compose reads them from: the file, the profiles or the engine would change unseen
+    edit(lab, lambda d: d["services"]["bridge"].update(secrets={name: "api_token"}))
+    refused_everywhere(capsys, lab, "fleet.yml:", f"services.bridge.secrets.{name}: {name} in .env is a setting "
+                                                    "of docker compose itself")

@@ -93,8 +93,13 @@ def test_a_volume_beside_a_files_target_still_renders(capsys: pytest.CaptureFixt
 
 
 def test_two_files_at_one_path_written_differently_are_refused(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    # since the fifth round a target must be written plainly, so `/config/./camera.yaml` is refused
+    # at its own key before it can clash with /config/camera.yaml
     fleet = with_volumes(lab, "/data/maps:/maps:ro", files="[camera, again]")
     fleet.write_text(fleet.read_text() + "  again: {var: camera_calibration, target: /config/./camera.yaml}\n")
+    refused(capsys, lab, "files.again.target: '/config/./camera.yaml' must be an absolute file path in the "
+                         "container, written without `.`")
+    fleet.write_text(fleet.read_text().replace("/config/./camera.yaml", "/config/camera.yaml"))
     refused(capsys, lab, "services.driver.files[1]: `again` and `camera` both mount at /config/camera.yaml")
 
 

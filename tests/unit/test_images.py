@@ -44,9 +44,18 @@ def test_rates_read_as_bytes_per_second(text, rate) -> None:
     assert parse_rate(text) == rate
 
 
-@pytest.mark.parametrize("text", ["2MB", "fast", "0MB/s", "-1MB/s", "2Mb/s/s", 0])
+@pytest.mark.parametrize("text", ["2MB", "fast", "0MB/s", "-1MB/s", "2Mb/s/s", 0,
+                                  # not finite, or so slow the pacing overflowed time_t (1e-7 B/s)
+                                  float("nan"), float("inf"), 1e-7, "0.0000001B/s", "999B/s"])
 def test_a_wrong_rate_is_refused(text) -> None:
     with pytest.raises(ValueError):
+        parse_rate(text)
+
+
+@pytest.mark.parametrize("text", ["2Mbps", "2Mb/s", "500kbps"])
+def test_a_rate_in_bits_is_refused_with_the_bytes_to_write(text) -> None:
+    # `2Mbps` was read as 2 MB/s: eight times the cap the user meant
+    with pytest.raises(ValueError, match="bits per second; write bytes"):
         parse_rate(text)
 
 

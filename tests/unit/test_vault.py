@@ -232,6 +232,21 @@ def test_encrypt_and_decrypt_files_in_place(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["vault.yml"]   # no temp files left
 
 
+def test_a_link_is_followed_as_ansible_vault_does(tmp_path):
+    # the link was replaced by an encrypted copy, and the file it points to stayed plaintext
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    real, link = shared / "secrets.yml", tmp_path / "all.yml"
+    real.write_bytes(SECRET)
+    link.symlink_to(real)
+    vault = Vault(b"pw")
+    encrypt_file(str(link), vault)
+    assert link.is_symlink() and is_encrypted(real.read_bytes()) and mode_of(real) == 0o600
+    decrypt_file(str(link), vault)
+    assert link.is_symlink() and real.read_bytes() == SECRET
+    assert sorted(p.name for p in shared.iterdir()) == ["secrets.yml"]   # no temp files left
+
+
 def test_edit_re_encrypts_and_leaves_no_plaintext(tmp_path):
     path = tmp_path / "vault.yml"
     vault = Vault(b"pw")
