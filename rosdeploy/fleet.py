@@ -946,7 +946,9 @@ def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[st
     if inventory:
         out["inventory"] = os.path.abspath(os.path.expanduser(os.path.expandvars(inventory)))
         if not _exists(out["inventory"]):
-            r.problems.append(Problem("--inventory", None, "", f"{inventory} does not exist: fix the -i path"))
+            hint = (" (Ansible's host list, `-i host1,host2,`, is not read: write an inventory file)"
+                    if "," in inventory else "")
+            r.problems.append(Problem("--inventory", None, "", f"{inventory} does not exist: fix the -i path{hint}"))
     if version is not None:
         cli = Reader(Doc("--version", None))
         cli.take(_tag, ("version",), version, out, "version")

@@ -492,6 +492,7 @@ def _drain(chan: paramiko.Channel, deadline: float, answers: Callable[[], bool] 
 
 
 CONNECT_TRIES = 3     # a Wi-Fi blip is not an outage: tries within one ssh.connect_timeout
+UNREACHABLE_HINT = ": is the robot on and on the network? Check its ansible_host and ansible_port"
 
 
 def connect(host: Host, options: SSHOptions, config: Config | None = None) -> SSHTransport:
@@ -509,8 +510,10 @@ def connect(host: Host, options: SSHOptions, config: Config | None = None) -> SS
             final = (attempt == CONNECT_TRIES or isinstance(exc, HostKeyError) or deadline - time.monotonic() < 1.5
                      or isinstance(exc.__cause__, paramiko.AuthenticationException))
             if final:
-                if attempt > 1:
-                    raise ConnectError(host.name, f"{exc.detail} ({attempt} tries within {budget:g}s)") from exc
+                tries = f" ({attempt} tries within {budget:g}s)" if attempt > 1 else ""
+                hint = UNREACHABLE_HINT if exc.detail.startswith("unreachable:") else ""
+                if tries or hint:
+                    raise ConnectError(host.name, f"{exc.detail}{tries}{hint}") from exc
                 raise
         time.sleep(random.uniform(0.1, min(0.5, max(0.1, deadline - time.monotonic() - 1.0))))
     raise AssertionError("unreachable: the last try raises")

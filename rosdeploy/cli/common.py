@@ -178,9 +178,20 @@ def path_arg(text: str) -> str:
     return expanded
 
 
+class _Once(argparse.Action):
+    """-i given once: a second one silently replaced the first, where Ansible reads both."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        if getattr(namespace, self.dest, None) is not None:
+            raise argparse.ArgumentError(self, "given twice: rosdeploy reads one inventory, a file or a folder "
+                                               "(whose files it merges, as Ansible does): put them in one folder")
+        setattr(namespace, self.dest, values)
+
+
 def add_fleet_args(parser: argparse.ArgumentParser, *, limit: bool = True, version: bool = True) -> None:
     parser.add_argument("fleet", type=path_arg, metavar="FLEET", help="the fleet file, e.g. playbooks/warehouse.yml")
-    parser.add_argument("-i", "--inventory", type=path_arg, metavar="PATH",
+    parser.add_argument("-i", "--inventory", type=path_arg, metavar="PATH", action=_Once,
                         help="inventory file or directory (overrides the fleet file's `inventory`)")
     if limit:
         parser.add_argument("-l", "--limit", metavar="PATTERN",

@@ -34,9 +34,11 @@ class Var:
     what: str = ""               # the expected shape, for the warning
 
 
-def host_fields(name: str, read: Callable[[str], Any], origins: Mapping[str, Origin]
+def host_fields(name: str, read: Callable[[str], Any], origins: Mapping[str, Origin],
+                secret_source: Callable[[str], str | None] = lambda var: None,
                 ) -> tuple[dict[str, Any], dict[str, Any], list[Problem], list[Problem]]:
-    """(Host fields, normalised vars, errors, warnings) of one host; `read` templates a var."""
+    """(Host fields, normalised vars, errors, warnings) of one host; `read` templates a var;
+    `secret_source`: the vault var a var's value came from, once read (see _refused)."""
     fields: dict[str, Any] = {"address": name}
     normalised: dict[str, Any] = {}
     errors: list[Problem] = []
@@ -52,7 +54,7 @@ def host_fields(name: str, read: Callable[[str], Any], origins: Mapping[str, Ori
                 return
             converted = spec.convert(value)
         except BadValue as bad:
-            errors.append(origins[var].problem((var, *bad.subpath), f"robot {shown(name)}: {bad.message}"))
+            errors.append(origins[var].problem((var, *bad.subpath), _refused(name, var, bad, secret_source(var))))
             return
         if spec.field is None:
             normalised[var] = converted
@@ -105,11 +107,40 @@ def check_layer(layer: Layer) -> tuple[list[Problem], list[Problem]]:
             warnings.append(layer.origin.problem((key,), f"{shown(key)} is not a variable rosdeploy reads (names are "
                                                          f"case-sensitive, rosdeploy's are lower-case): {hint}",
                                                  severity="warning"))
+        elif key in _NOT_HONOURED and _not_honoured(key, layer.vars[key]):
+            warnings.append(layer.origin.problem((key,), _not_honoured(key, layer.vars[key]), severity="warning"))
         elif close := _near_miss(key):
             warnings.append(layer.origin.problem((key,), f"{shown(key)} is not a variable rosdeploy reads: did you "
                                                          f"mean {shown(close)}? (ignored if it is another tool's)",
                                                  severity="warning"))
     return errors, warnings
+
+
+# Ansible's ways to reach a host that rosdeploy does not take: it connects over SSH, with its own
+# client, its host key checks always on.
+_NOT_HONOURED = ("ansible_connection", "ansible_ssh_common_args", "ansible_ssh_extra_args")
+_SSH_CONNECTIONS = ("ssh", "smart", "paramiko", "paramiko_ssh")
+
+
+def _not_honoured(key: str, value: Any) -> str:
+    """The warning for an Ansible connection var rosdeploy ignores, or "" when it changes nothing."""
+    if key == "ansible_connection":
+        if not isinstance(value, str) or value in _SSH_CONNECTIONS or "{{" in value:
+            return ""
+        return f"{shown(value)} is ignored: rosdeploy reaches every robot over SSH (with sshd at ansible_host)"
+    return ("ignored: rosdeploy runs no ssh command and always checks host keys; put SSH options "
+            "(ProxyJump, Port, User) in an OpenSSH config, the fleet file's `ssh.config` (default ~/.ssh/config)")
+
+
+def _refused(name: str, var: str, bad: BadValue, source: str | None) -> str:
+    """Why a var's value was refused. A value from a vault is never quoted, in any form: masking the
+    secret's text misses a transformed one (`{{ token | list }}` quoted one character at a time)."""
+    if source is None:
+        return f"robot {shown(name)}: {bad.message}"
+    # "must be X, got Y": X is the rule, with no part of the value in it
+    must = bad.message.rsplit(", got ", 1)[0] if bad.message.startswith("must be ") else "is not valid here"
+    return (f"robot {shown(name)}: {var}, computed from vault var {shown(source)}, {must}; got '********' (a "
+            "secret is never shown: check it with `rosdeploy vault view`)")
 
 
 @functools.lru_cache(maxsize=4096)     # 5,000 host_vars files hold the same few keys
@@ -161,6 +192,18 @@ def _to_domain_id(value: Any) -> int:
     if not 0 <= domain <= 232:
         raise BadValue(f"must be 0-232 (DDS maps higher IDs to ports outside the valid range), got {domain}")
     return domain
+
+
+def _to_rate(value: Any) -> Any:
+    """Checked at load, as the fleet file's images.max_rate is; read again where images move."""
+    from rosdeploy.images.refs import parse_rate
+    try:
+        parse_rate(value)
+    except ValueError as exc:
+        why = "bits per second; write bytes, " if "bits" in str(exc) else ""
+        raise BadValue(f"must be a rate in bytes per second from 1kB/s up ({why}e.g. 2MB/s or 500kB/s), "
+                       f"got {shown(value)}") from None
+    return value
 
 
 def _to_bool(value: Any) -> bool:
@@ -232,10 +275,6 @@ def _to_route(value: Any) -> str:
         return str(value)
     raise BadValue(f"must be one of {', '.join(IMAGE_ROUTES)}, got {shown(value)}"
                    f"{did_you_mean_hint(value, IMAGE_ROUTES)}")
-
-
-def _as_is(value: Any) -> Any:
-    return value      # checked by its reader (rosdeploy.images.supply.check_vars: the rate's units)
 
 
 def _to_compose(value: Any) -> str:
@@ -381,7 +420,7 @@ PREFIXED_ONLY: dict[str, Var] = {
     "rosdeploy_home": Var(None, _to_remote_root),
     "rosdeploy_compose": Var(None, _to_compose),
     "rosdeploy_images_via": Var(None, _to_route),          # docs/images.md
-    "rosdeploy_images_max_rate": Var(None, _as_is),
+    "rosdeploy_images_max_rate": Var(None, _to_rate),
 }
 PREFIXED_VARS = frozenset({*(PREFIX + name for name in OWN_VARS), *PREFIXED_ONLY})
 CONSUMED_VARS = (*OWN_VARS, *PREFIXED_VARS, *(var for names in CONNECTION.values() for var in names))

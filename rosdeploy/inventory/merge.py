@@ -21,14 +21,22 @@ def assemble(draft: Draft, graph: Graph, root: Path, base: Path) -> Inventory:
         errors, warnings = check_layer(layer)
         draft.problems.extend(errors)
         draft.warnings.extend(warnings)
+    for name in sorted(draft.hosts.keys() & draft.groups.keys()):
+        # Ansible warns too ("Found both group and host with same name"): a pattern selects the host
+        file, line = split_where(draft.hosts[name].source)
+        draft.warnings.append(Problem(file, line, "", f"{shown(name)} is both a host and a group: `--limit {name}` "
+                                      "selects the host only, as in Ansible; rename one", severity="warning"))
     direct = _direct_groups(draft)
     host_groups = {name: _host_groups(direct[name], graph) for name in draft.hosts}
     ordered = {name: ansible_order(name, draft) for name in draft.groups}
     hostvars: dict[str, HostVars] = {}
     magic = {"groups": {name: list(hosts) for name, hosts in ordered.items()}, "hostvars": hostvars}
+    # every host's vars exist before any is read: `hostvars['b']` in a's vars finds b, wherever b is
+    # declared (Ansible's order does not matter there either)
+    merged = {name: _host_vars(host, host_groups[name], draft, magic) for name, host in draft.hosts.items()}
     hosts: dict[str, Host] = {}
     for name, host in draft.hosts.items():
-        built = _build_host(host, host_groups[name], draft, magic)
+        built = _build_host(host, host_groups[name], draft, *merged[name])
         if built is not None:
             hosts[name] = built
     if not draft.hosts and not draft.problems:
@@ -114,7 +122,9 @@ def _host_layers(host: HostDraft, groups: tuple[str, ...], draft: Draft) -> list
             *host.inline, *host.files]
 
 
-def _build_host(host: HostDraft, groups: tuple[str, ...], draft: Draft, magic: dict[str, Any]) -> Host | None:
+def _host_vars(host: HostDraft, groups: tuple[str, ...], draft: Draft, magic: dict[str, Any],
+               ) -> tuple[HostVars, dict[str, Origin], list[Layer]]:
+    """One host's merged vars (templated on first read), registered in `hostvars`."""
     layers = _host_layers(host, groups, draft)
     merged, origins = _merge(layers)
     source_file = os.path.abspath(split_where(host.source)[0])
@@ -123,7 +133,12 @@ def _build_host(host: HostDraft, groups: tuple[str, ...], draft: Draft, magic: d
         "inventory_file": source_file, "inventory_dir": os.path.dirname(source_file),
         "group_names": sorted(g for g in groups if g != "all")})
     magic["hostvars"][host.name] = hostvars
-    fields, normalised, errors, warnings = host_fields(host.name, _reader(hostvars), origins)
+    return hostvars, origins, layers
+
+
+def _build_host(host: HostDraft, groups: tuple[str, ...], draft: Draft, hostvars: HostVars,
+                origins: dict[str, Origin], layers: list[Layer]) -> Host | None:
+    fields, normalised, errors, warnings = host_fields(host.name, _reader(hostvars), origins, hostvars.secret_source)
     errors += _written_from_vault(host.name, hostvars, origins)
     draft.problems.extend(_hide_secrets(hostvars, errors))
     draft.warnings.extend(_hide_secrets(hostvars, warnings))

@@ -19,7 +19,7 @@ import functools
 import posixpath
 import re
 import threading
-from typing import Any, Iterator, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
 import jinja2
 
@@ -74,13 +74,24 @@ def _environment() -> Sandbox:
     # written by another system can no more exhaust memory than a fleet value can. Only the
     # sandbox's own bounded `range` and `dict` stay as globals: fewer objects, fewer ways in.
     env = Sandbox(keep_trailing_newline=True)
-    env.globals = {"range": env.globals["range"], "dict": dict}
+    env.globals = {"range": env.globals["range"], "dict": dict,
+                   # Ansible's; refused by name, not left undefined, so `| default(..)` cannot stand in
+                   # for what Ansible would have read (a host_vars file may come from another system)
+                   **{name: _refused_global(name) for name in ("lookup", "query", "q", "now")}}
     # A few of Ansible's filters that inventories use for paths and names; all pure.
     from rosdeploy.sandbox import regex_replace     # bounded in time and size, unlike re.sub
     env.add_filters({"basename": posixpath.basename, "dirname": posixpath.dirname, "bool": _bool,
                         "regex_replace": regex_replace,
                         "ternary": lambda v, a, b=None: a if v else b})
     return env
+
+
+def _refused_global(name: str) -> Callable[..., Any]:
+    def refused(*args: Any, **kwargs: Any) -> Any:
+        raise jinja2.sandbox.SecurityError(
+            f"{name}() reads this machine (files, the environment, commands or the clock) in Ansible, which "
+            "rosdeploy never does for an inventory; write the value itself")
+    return refused
 
 
 _ENV = _environment()
@@ -336,4 +347,8 @@ def _compiled_expression(expr: str) -> jinja2.Template:
 def _reason(exc: jinja2.TemplateError) -> str:
     if isinstance(exc, jinja2.sandbox.SecurityError):
         return f"refused by the template sandbox ({exc.message}): inventory templates may read vars only"
-    return exc.message or type(exc).__name__
+    message = exc.message or type(exc).__name__
+    if message.startswith("No filter named"):     # one of Ansible's (to_yaml, b64decode, hash…)
+        return (f"{message} (an inventory template has Jinja2's filters and basename, dirname, bool, "
+                "regex_replace, ternary; write the value itself)")
+    return message

@@ -267,6 +267,16 @@ def test_the_pending_record_keeps_the_unconverged_and_drops_the_rest(tmp_path: P
 
 # --------------------------------------------------------------- connect blips
 
+def test_an_unreachable_robot_is_named_with_what_to_check() -> None:
+    # a real refused connection: port 1 on this machine
+    host = Host("r1", ("all",), {}, "127.0.0.1", port=1)
+    with pytest.raises(ConnectError) as caught:
+        transport.connect(host, transport.SSHOptions(connect_timeout=2.0))
+    text = str(caught.value)
+    assert text.startswith("r1: unreachable: [127.0.0.1]:1: ") and "tries within 2s)" in text, text
+    assert text.endswith(": is the robot on and on the network? Check its ansible_host and ansible_port"), text
+
+
 def test_connect_retries_a_blip_within_the_budget_and_not_a_bad_host_key(monkeypatch) -> None:
     calls: list[float] = []
 

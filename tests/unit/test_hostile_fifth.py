@@ -16,6 +16,14 @@
 7. `!unsafe` in the fleet file was accepted and then templated anyway.
 8. A secret named COMPOSE_FILE, COMPOSE_PROFILES or DOCKER_HOST went into .env, where compose
    reads its own settings.
+9. `lookup()`, `query()` and `now()` in an inventory var were undefined names, so a fleet value's
+   `| default(..)` silently deployed its fallback where Ansible would read the machine.
+10. `hostvars['b']` in a's vars failed when b was declared after a.
+11. A second `-i` silently replaced the first (Ansible reads both).
+12. `ansible_connection: docker` and `ansible_ssh_common_args` were ignored without a word.
+13. `rosdeploy_images_max_rate: fast` passed validate and check; plan and apply refused it.
+14. A name that is both a host and a group: no warning (Ansible warns).
+(A value computed from a vault value quoted one character at a time: test_vault_taint.py.)
 (Extra templates named like a release's folders or its built-in files: test_hostile.py.)
 """
 from __future__ import annotations
@@ -221,3 +229,90 @@ def test_a_secret_may_not_set_a_setting_of_compose_itself(capsys: pytest.Capture
     edit(lab, lambda d: d["services"]["bridge"].update(secrets={name: "api_token"}))
     refused_everywhere(capsys, lab, "fleet.yml:", f"services.bridge.secrets.{name}: {name} in .env is a setting "
                                                     "of docker compose itself")
+
+
+# ------------------------------------------------------------------ 9. Ansible's machine-reading globals
+
+def inventory_var(lab: Path, text: str) -> None:
+    (lab / "inventory" / "host_vars" / "r1.yml").write_text(text)
+
+
+@pytest.mark.parametrize("expr", ["lookup('env', 'HOME')", "query('file', '/etc/hostname') | first", "now().year"])
+def test_a_lookup_in_an_inventory_var_is_an_error_even_under_a_default(capsys: pytest.CaptureFixture, lab: Path,
+                                                                        expr: str) -> None:
+    inventory_var(lab, f'site: "{{{{ {expr} }}}}"\n')
+    edit(lab, set_env("{{ site | default('fallback') }}"))
+    name = expr.split("(")[0]
+    refused_everywhere(capsys, lab, "host_vars/r1.yml:1: site: robot 'r1'",
+                       f"{name}() reads this machine", "rosdeploy never does for an inventory")
+
+
+def test_an_ansible_filter_rosdeploy_lacks_says_which_it_has(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    inventory_var(lab, 'site: "{{ \'north\' | b64encode }}"\n')
+    edit(lab, set_env("{{ site }}"))
+    refused_everywhere(capsys, lab, "No filter named 'b64encode'", "Jinja2's filters and basename, dirname")
+
+
+# ------------------------------------------------------------------ 10. hostvars of a later host
+
+def test_hostvars_of_a_host_declared_later_are_read(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    # a var the inventory itself reads (ros_domain_id, ansible_host…) is read while robots are built:
+    # r2 is declared after r1, and `hostvars['r2']` was "no attribute 'r2'"
+    hosts = lab / "inventory" / "hosts.yml"
+    hosts.write_text(hosts.read_text().replace("ros_domain_id: 1", "ros_domain_id: \"{{ hostvars['r2'].ros_domain_id "
+                                                                   "+ 5 }}\""))
+    code, text = cli(capsys, lab, "render")
+    assert code == 0, text
+    assert "ROS_DOMAIN_ID=7" in (lab / "out" / "r1" / ".env").read_text()
+
+
+# ------------------------------------------------------------------ 11. -i twice
+
+def test_a_second_inventory_option_is_refused(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    inventory = str(lab / "inventory")
+    code, text = cli(capsys, lab, "validate", "-i", inventory, "-i", inventory)
+    assert code == 2 and "argument -i/--inventory: given twice" in text, text
+    code, text = cli(capsys, lab, "validate", "-i", "r1,r2,")
+    assert code == 2 and "Ansible's host list, `-i host1,host2,`, is not read" in text, text
+
+
+# ------------------------------------------------------------------ 12. connection vars rosdeploy does not take
+
+@pytest.mark.parametrize("var, value, words", [
+    ("ansible_connection", "docker", "'docker' is ignored: rosdeploy reaches every robot over SSH"),
+    ("ansible_ssh_common_args", "-o ProxyCommand=nc bastion 22", "ignored: rosdeploy runs no ssh command"),
+    ("ansible_ssh_extra_args", "-o StrictHostKeyChecking=no", "always checks host keys"),
+])
+def test_a_connection_var_rosdeploy_ignores_is_named(capsys: pytest.CaptureFixture, lab: Path, var: str,
+                                                     value: str, words: str) -> None:
+    inventory_var(lab, yaml.safe_dump({var: value}))
+    code, text = cli(capsys, lab, "validate")
+    assert code == 0 and f"warning: {lab / 'inventory' / 'host_vars' / 'r1.yml'}:1: {var}: " in text, text
+    assert words in text
+
+
+@pytest.mark.parametrize("value", ["ssh", "smart", "paramiko"])
+def test_an_ssh_connection_var_gets_no_warning(capsys: pytest.CaptureFixture, lab: Path, value: str) -> None:
+    inventory_var(lab, f"ansible_connection: {value}\n")
+    code, text = cli(capsys, lab, "validate")
+    assert code == 0 and "ansible_connection" not in text, text
+
+
+# ------------------------------------------------------------------ 13. a robot's own rate
+
+@pytest.mark.parametrize("value, words", [("fast", "got 'fast'"), ("2Mbps", "bits per second; write bytes")])
+def test_a_robots_rate_is_checked_at_load(capsys: pytest.CaptureFixture, lab: Path, value: str, words: str) -> None:
+    inventory_var(lab, f"rosdeploy_images_max_rate: {value}\n")
+    refused_everywhere(capsys, lab, "host_vars/r1.yml:1: rosdeploy_images_max_rate: robot 'r1': must be a rate in "
+                                    "bytes per second from 1kB/s up", words)
+
+
+# ------------------------------------------------------------------ 14. a host named like a group
+
+def test_a_host_named_like_a_group_is_warned_about(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    hosts = lab / "inventory" / "hosts.yml"
+    data = yaml.safe_load(hosts.read_text())
+    data["all"]["children"]["r1"] = {"hosts": {"r2": None}}     # a group `r1` holding r2
+    hosts.write_text(yaml.safe_dump(data))
+    code, text = cli(capsys, lab, "validate")
+    assert code == 0 and "'r1' is both a host and a group: `--limit r1` selects the host only" in text, text
