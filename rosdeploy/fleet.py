@@ -394,6 +394,32 @@ def _known_hosts_file(r: Reader, kp: KeyPath, value: Any) -> Any:
     return path
 
 
+MAX_SSH_CONFIG = 1 << 20     # bytes: an OpenSSH config of a whole fleet is a few KB
+
+
+def _ssh_config_file(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """An OpenSSH client config: a regular UTF-8 file that exists (a binary one was an internal
+    error, a 1 GB one a MemoryError, a fifo or a folder silently nothing)."""
+    path = r.local_path(kp, value)
+    try:
+        info = os.stat(path)
+    except OSError as exc:
+        raise Invalid(f"{path}: {exc.strerror}: give the path of an OpenSSH client config file") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise Invalid(f"{path} is not a regular file (a fifo, a device or a directory): give the path of an "
+                      "OpenSSH client config file")
+    if info.st_size > MAX_SSH_CONFIG:
+        raise Invalid(f"{path} is larger than {MAX_SSH_CONFIG >> 20} MB: that is no OpenSSH config file")
+    try:
+        with open(path, "rb") as handle:
+            handle.read(MAX_SSH_CONFIG + 1).decode("utf-8")
+    except UnicodeDecodeError:
+        raise Invalid(f"{path} is not UTF-8 text: give the path of an OpenSSH client config file") from None
+    except OSError as exc:
+        raise Invalid(f"{path}: {exc.strerror}: give the path of an OpenSSH client config file") from None
+    return path
+
+
 def known_hosts_problem(path: str) -> str | None:
     """Why `path` cannot be a known_hosts file (a fifo hangs the read, /dev/zero fills memory), or
     None; a missing one is each robot's error, as OpenSSH makes it. For ssh.known_hosts and the
@@ -882,7 +908,7 @@ SERVICE = {
     "files": _listof(_string(NAME_RE, "file name (a key of the top-level `files:`)"), "file names"),
 }
 SECTIONS: dict[str, Mapping[str, Convert]] = {
-    "ssh": {"known_hosts": _known_hosts_file, "config": Reader.local_path,
+    "ssh": {"known_hosts": _known_hosts_file, "config": _ssh_config_file,
             "connect_timeout": _positive_duration, "command_timeout": _positive_duration,
             "persist": _duration},
     "ros": {"rmw": _enum("fastdds", "cyclonedds"), "network_mode": _enum("host", "bridge"), "shm_size": _size},

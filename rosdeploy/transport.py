@@ -11,19 +11,24 @@ we replace it with RejectPolicy before connecting.
 """
 from __future__ import annotations
 
+import base64
+import binascii
 import functools
+import hmac
+import io
 import getpass
 import logging
 import os
 import random
 import select
+import shlex
 import socket
 import stat
 import threading
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass, replace
-from typing import Callable, Protocol, Sequence
+from typing import Callable, Mapping, Protocol, Sequence
 
 import paramiko
 from fabric import Config, Connection
@@ -31,7 +36,7 @@ from fabric import Config, Connection
 from rosdeploy import execwait
 from rosdeploy.commands import Command
 from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError
-from rosdeploy.fleet import MAX_KNOWN_HOSTS
+from rosdeploy.fleet import MAX_KNOWN_HOSTS, MAX_SSH_CONFIG
 from rosdeploy.model import Host
 
 
@@ -98,8 +103,22 @@ def parsed_ssh_config(options: SSHOptions) -> paramiko.SSHConfig:
     path = os.path.expanduser(options.ssh_config) if options.ssh_config else None
     if path and not os.path.exists(path):
         raise ConnectError("ssh", f"ssh config {path} does not exist: fix `ssh.config` in the fleet file")
-    config = Config(overrides=FABRIC_OVERRIDES, runtime_ssh_path=path) if path else Config(overrides=FABRIC_OVERRIDES)
-    return config.base_ssh_config
+    # as fabric reads them (the fleet's file, else the system's then the user's), each read here
+    # bounded: a fifo, /dev/zero or a binary file must not hang, fill memory or crash the run
+    paths = [path] if path else [p for p in ("/etc/ssh/ssh_config", os.path.expanduser("~/.ssh/config"))
+                                 if os.path.exists(p)]
+    config = paramiko.SSHConfig()
+    for each in paths:
+        try:
+            text = _read_bounded(each, MAX_SSH_CONFIG, "ssh config").decode("utf-8")
+        except UnicodeDecodeError:
+            raise ConnectError("ssh", f"ssh config {each} is not UTF-8 text: fix it") from None
+        except _Unusable as exc:
+            raise ConnectError("ssh", f"ssh config {each} {exc}: fix it") from None
+        except OSError as exc:
+            raise ConnectError("ssh", f"ssh config {each}: {exc.strerror or exc}: fix it") from None
+        config.parse(io.StringIO(text))
+    return config
 
 
 def fabric_config(options: SSHOptions) -> Config:
@@ -124,15 +143,19 @@ class SSHTransport:
         kwargs: dict = {}
         if self.host.key_file:
             kwargs["key_filename"] = [os.path.expanduser(self.host.key_file)]
-        conn = Connection(self.host.address, user=self.host.user, port=self.host.port, config=config,
+        # 22 is also what a robot without ansible_port has: leave the port to ssh_config's `Port` then
+        conn = Connection(self.host.address, user=self.host.user, port=self.host.port if self.host.port != 22 else None,
+                          config=config,
                           connect_timeout=int(self.options.connect_timeout) or None, connect_kwargs=kwargs)
         try:
             files = [_parsed_host_keys(path) for path in known_hosts_for(self.host, self.options)]
         except UnusableKnownHosts as exc:
             raise HostKeyError(self.host.name, f"{exc}: {self._known_hosts_setting(exc.path)}") from exc
         conn.client.set_missing_host_key_policy(_RejectUnknown(files))
+        # the one name paramiko looks up (SSHClient.connect), after ssh_config's HostName and Port
+        name = conn.host if conn.port == 22 else f"[{conn.host}]:{conn.port}"
         for known in files:
-            conn.client.get_host_keys().update(known.keys)
+            conn.client.get_host_keys().update(known.for_name(name))
         return conn
 
     @property
@@ -158,14 +181,26 @@ class SSHTransport:
                                                "refuses it. Replace the robot's host key") from exc
         except paramiko.SSHException as exc:
             if "not found in known_hosts" in str(exc):
-                raise HostKeyError(self.host.name, self._unknown_key_message()) from exc
-            raise ConnectError(self.host.name, f"SSH to {self.endpoint} failed: {exc}") from exc
+                raise HostKeyError(self.host.name, self._unknown_key_message(getattr(exc, "key", None))) from exc
+            raise ConnectError(self.host.name, f"SSH to {self.endpoint} failed: {self._why(exc)}") from exc
         except (socket.timeout, TimeoutError) as exc:
             raise ConnectError(self.host.name, f"unreachable: no answer from {self.endpoint} within "
                                                f"{self.options.connect_timeout:g}s (ssh.connect_timeout)") from exc
         except OSError as exc:
             raise ConnectError(self.host.name, f"unreachable: {self.endpoint}: {exc.strerror or exc}") from exc
         return self
+
+    def _why(self, exc: paramiko.SSHException) -> str:
+        """paramiko's words, and what to check: its own ("No existing session") say neither."""
+        user = self._conn.user
+        key = self.host.key_file or "ssh-agent and ~/.ssh/id_*"
+        if isinstance(exc, paramiko.AuthenticationException) or "No authentication methods" in str(exc):
+            return (f"{exc} (login as {user!r} with {key}): check ansible_user and "
+                    "ansible_ssh_private_key_file, and that the key is in the robot's authorized_keys")
+        if "No existing session" in str(exc) or "Error reading SSH protocol banner" in str(exc):
+            return (f"{exc}: the SSH handshake did not finish within ssh.connect_timeout; check that sshd "
+                    "answers on that port (or the ssh config's ProxyCommand/ProxyJump)")
+        return str(exc)
 
     def _check_key_file(self) -> None:
         """A missing key file would surface as paramiko's bare "No such file"; name the file and its var."""
@@ -191,19 +226,20 @@ class SSHTransport:
         return f"replace {path} with a regular known_hosts file of host keys, or remove it"
 
     def _changed_key_message(self, exc: paramiko.BadHostKeyException) -> str:
-        files = ", ".join(known_hosts_for(self.host, self.options))
+        paths = known_hosts_for(self.host, self.options)
         return (f"HOST KEY CHANGED for {self.endpoint}: it offered {exc.key.get_name()} "
-                f"{exc.key.fingerprint} but {files} expects {exc.expected_key.fingerprint}. "
+                f"{exc.key.fingerprint} but {', '.join(paths)} expects {exc.expected_key.fingerprint}. "
                 f"This can be an attack; if the robot was reinstalled, verify the new key and run "
-                f"`ssh-keygen -R '{self.endpoint}'` then add the new key.")
+                f"`ssh-keygen -f {shlex.quote(paths[0])} -R '{self.endpoint}'` then add the new key.")
 
-    def _unknown_key_message(self) -> str:
+    def _unknown_key_message(self, offered: paramiko.PKey | None) -> str:
         paths = known_hosts_for(self.host, self.options)
         skipped = " ".join(w for path in paths for w in known_hosts_warnings(path))
-        return (f"host key of {self.endpoint} is not in {', '.join(paths)}; rosdeploy never trusts an unknown "
-                f"key. Verify the robot's fingerprint, then add it (e.g. `ssh-keyscan -p {self._conn.port} "
-                f"{self._conn.host} >> ~/.ssh/known_hosts`) or point `rosdeploy_known_hosts` at a file that has it."
-                + (f" Note: {skipped}" if skipped else ""))
+        key = f" (it offered {offered.get_name()} {offered.fingerprint})" if offered is not None else ""
+        return (f"host key of {self.endpoint}{key} is not in {', '.join(paths)}; rosdeploy never trusts an "
+                f"unknown key. Verify the robot's fingerprint, then add it (e.g. `ssh-keyscan -p {self._conn.port} "
+                f"{self._conn.host} >> {shlex.quote(paths[0])}`) or point `rosdeploy_known_hosts` at a file that "
+                "has it." + (f" Note: {skipped}" if skipped else ""))
 
     def run(self, command: Command) -> Result:
         """Run one command; a non-zero exit is a Result, not an exception (see `check`)."""
@@ -233,6 +269,10 @@ class SSHTransport:
                                                f"answer the request to run it ({exc})") from exc
         except TimeoutError as exc:
             raise ConnectError(self.host.name, f"`{command.display()}` timed out after {timeout:g}s") from exc
+        except OutputTooLarge as exc:
+            raise ConnectError(self.host.name, f"`{command.display()}` printed more than {MAX_OUTPUT >> 20} MB: "
+                                               "stopped; no rosdeploy command prints that much, so check what "
+                                               "answers on this robot's SSH port") from exc
         except (paramiko.SSHException, OSError, EOFError) as exc:
             raise ConnectError(self.host.name, f"connection lost during `{command.display()}`: {exc}") from exc
         return Result(command.display(), out, err, code, time.monotonic() - started)
@@ -271,6 +311,14 @@ def _keepalive(transport: paramiko.Transport | None) -> None:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_USER_TIMEOUT, int(LINK_TIMEOUT * 1000))
 
 
+class UnknownHostKey(paramiko.SSHException):
+    """The robot's key is in no known_hosts file; `key` is the one it offered."""
+
+    def __init__(self, message: str, key: paramiko.PKey) -> None:
+        super().__init__(message)
+        self.key = key
+
+
 class RevokedHostKey(paramiko.SSHException):
     """The robot offered a key a known_hosts file marks `@revoked`."""
 
@@ -287,9 +335,23 @@ class KnownHosts:
     offers one is refused by name rather than reported unknown.
     """
 
-    keys: paramiko.HostKeys
-    revoked: frozenset[tuple[str, bytes]]      # (key type, key blob)
+    entries: tuple[tuple[str, paramiko.PKey], ...]    # (host name, plain or `|1|` hashed; key), file order
+    plain: Mapping[str, tuple[int, ...]]              # a plain name -> its entries
+    hashed: tuple[int, ...]                           # the entries of hashed names
+    revoked: frozenset[tuple[str, bytes]]             # (key type, key blob)
     warnings: tuple[str, ...]
+
+    def for_name(self, name: str) -> paramiko.HostKeys:
+        """The keys of `name`, as paramiko's HostKeys would hold them for the whole file (the last
+        of a key type wins). Only these: building HostKeys of a whole file is quadratic (its add()
+        scans every entry), and 20,000 lines took over 30 s for every robot's connection."""
+        found = [i for i in self.hashed if hmac.compare_digest(paramiko.HostKeys.hash_host(name, self.entries[i][0]),
+                                                               self.entries[i][0])]
+        out = paramiko.HostKeys()
+        for i in sorted([*self.plain.get(name, ()), *found]):
+            key = self.entries[i][1]
+            out.add(name, key.get_name(), key)
+        return out
 
 
 class _RejectUnknown(paramiko.MissingHostKeyPolicy):
@@ -301,7 +363,7 @@ class _RejectUnknown(paramiko.MissingHostKeyPolicy):
     def missing_host_key(self, client: paramiko.SSHClient, hostname: str, key: paramiko.PKey) -> None:
         if (key.get_name(), key.asbytes()) in self.revoked:
             raise RevokedHostKey(f"it offered {key.get_name()} {key.fingerprint}, marked @revoked in known_hosts")
-        raise paramiko.SSHException(f"Server {hostname!r} not found in known_hosts")
+        raise UnknownHostKey(f"Server {hostname!r} not found in known_hosts", key)
 
 
 
@@ -320,25 +382,35 @@ def _host_keys_file(path: str, mtime_ns: int) -> KnownHosts:
 
 
 def _read_known_hosts(path: str) -> str:
-    """The file's text, read only when it is a regular file of at most MAX_KNOWN_HOSTS bytes: a
-    fifo would hang the run and /dev/zero fill its memory. Opened without blocking (a fifo with
-    no writer) and checked on the open descriptor, so a file swapped after a stat is caught too."""
+    try:
+        return _read_bounded(path, MAX_KNOWN_HOSTS, "known_hosts").decode("utf-8", errors="replace")
+    except _Unusable as exc:
+        raise UnusableKnownHosts(path, str(exc)) from None
+
+
+class _Unusable(Exception):
+    """A file that is not a regular one, or too big to be what it should: never read."""
+
+
+def _read_bounded(path: str, limit: int, what: str) -> bytes:
+    """The file's bytes, read only when it is a regular file of at most `limit` bytes: a fifo
+    would hang the run and /dev/zero fill its memory. Opened without blocking (a fifo with no
+    writer) and checked on the open descriptor, so a file swapped after a stat is caught too."""
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0))
     try:
         mode = os.fstat(fd).st_mode
         if not stat.S_ISREG(mode):
-            raise UnusableKnownHosts(path, f"is {_file_kind(mode)}, not a regular file")
+            raise _Unusable(f"is {_file_kind(mode)}, not a regular file")
         chunks: list[bytes] = []
         size = 0
-        while size <= MAX_KNOWN_HOSTS and (chunk := os.read(fd, min(1 << 20, MAX_KNOWN_HOSTS + 1 - size))):
+        while size <= limit and (chunk := os.read(fd, min(1 << 20, limit + 1 - size))):
             chunks.append(chunk)
             size += len(chunk)
     finally:
         os.close(fd)
-    if size > MAX_KNOWN_HOSTS:
-        raise UnusableKnownHosts(path, f"is larger than {MAX_KNOWN_HOSTS >> 20} MB: that is no known_hosts file")
-    data = b"".join(chunks)
-    return data.decode("utf-8", errors="replace")
+    if size > limit:
+        raise _Unusable(f"is larger than {limit >> 20} MB: that is no {what} file")
+    return b"".join(chunks)
 
 
 def _file_kind(mode: int) -> str:
@@ -348,8 +420,8 @@ def _file_kind(mode: int) -> str:
 
 
 def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
-    """Plain entries (hashed or not) into HostKeys; @revoked into `revoked`; the rest skipped with a warning."""
-    keys, revoked, authorities, unreadable = paramiko.HostKeys(), set(), 0, []
+    """Plain entries (hashed or not), minus @revoked keys; the rest skipped with a warning."""
+    revoked, authorities, unreadable = set(), 0, []
     entries: list[paramiko.hostkeys.HostKeyEntry] = []
     for number, line in enumerate(lines, 1):
         line = line.strip()
@@ -367,11 +439,16 @@ def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
             revoked.add(blob)
         elif entry is not None:
             entries.append(entry)
-    for entry in entries:   # a revoked key is never trusted, whatever else the file says
-        if (entry.key.get_name(), entry.key.asbytes()) not in revoked:
-            for name in entry.hostnames:
-                keys.add(name, entry.key.get_name(), entry.key)
-    return KnownHosts(keys, frozenset(revoked), _warnings(path, authorities, unreadable))
+    # a revoked key is never trusted, whatever else the file says
+    kept = [(name, e.key) for e in entries if (e.key.get_name(), e.key.asbytes()) not in revoked
+            for name in e.hostnames]
+    plain: dict[str, list[int]] = {}
+    for i, (name, _) in enumerate(kept):
+        if not name.startswith("|1|"):
+            plain.setdefault(name, []).append(i)
+    return KnownHosts(tuple(kept), {name: tuple(found) for name, found in plain.items()},
+                      tuple(i for i, (name, _) in enumerate(kept) if name.startswith("|1|")),
+                      frozenset(revoked), _warnings(path, authorities, unreadable))
 
 
 def _entry(line: str) -> paramiko.hostkeys.HostKeyEntry | None:
@@ -381,7 +458,21 @@ def _entry(line: str) -> paramiko.hostkeys.HostKeyEntry | None:
         # A line that is not a key is skipped, as OpenSSH does; _warnings names it by line number only,
         # never by its text (it may be any bytes).
         return None
-    return entry if entry is not None and entry.key is not None else None
+    if entry is None or entry.key is None or not all(map(_readable_name, entry.hostnames)):
+        return None
+    return entry
+
+
+def _readable_name(name: str) -> bool:
+    """A hashed name (`|1|salt|hash`) whose salt and hash are base64: paramiko decodes the salt
+    only on lookup, where a bad one raised out of every connection (an internal error)."""
+    if not name.startswith("|1|"):
+        return True
+    parts = name[3:].split("|")
+    try:
+        return len(parts) == 2 and all(base64.b64decode(part, validate=True) for part in parts)
+    except binascii.Error:
+        return False
 
 
 def _key_blob(fields: list[str]) -> tuple[str, bytes] | None:
@@ -416,7 +507,7 @@ def _parsed_host_keys(path: str) -> KnownHosts:
     try:
         return _host_keys_file(path, os.stat(path).st_mtime_ns)
     except OSError:
-        return KnownHosts(paramiko.HostKeys(), frozenset(), ())
+        return KnownHosts((), {}, (), frozenset(), ())
 
 
 def _answers(transport: paramiko.Transport) -> bool:
@@ -461,12 +552,20 @@ def _send(chan: paramiko.Channel, data: bytes, deadline: float, answers: Callabl
     chan.settimeout(None)
 
 
+MAX_OUTPUT = 64 << 20    # bytes of stdout and stderr together: rosdeploy's commands print KBs
+
+
+class OutputTooLarge(Exception):
+    """A command printed more than MAX_OUTPUT bytes."""
+
+
 def _drain(chan: paramiko.Channel, deadline: float, answers: Callable[[], bool] | None = None) -> tuple[str, str]:
     """Read stdout and stderr together until the remote side closes or the deadline passes.
     `answers`: asked after LINK_QUIET s without a byte; False ends the read as a lost link."""
     out: list[bytes] = []
     err: list[bytes] = []
     heard = time.monotonic()
+    size = 0
     while True:
         if chan.recv_ready() or chan.recv_stderr_ready():
             heard = time.monotonic()
@@ -475,10 +574,13 @@ def _drain(chan: paramiko.Channel, deadline: float, answers: Callable[[], bool] 
                 chan.close()
                 raise _stopped_answering()
             heard = time.monotonic()
-        while chan.recv_ready():
-            out.append(chan.recv(65536))
-        while chan.recv_stderr_ready():
-            err.append(chan.recv_stderr(65536))
+        for ready, recv, into in ((chan.recv_ready, chan.recv, out), (chan.recv_stderr_ready, chan.recv_stderr, err)):
+            while ready():
+                into.append(recv(65536))
+                size += len(into[-1])
+                if size > MAX_OUTPUT:      # a command without end (or a hostile sshd) must not fill this memory
+                    chan.close()
+                    raise OutputTooLarge()
         if chan.exit_status_ready() and not chan.recv_ready() and not chan.recv_stderr_ready():
             # eof_received: the exit status can arrive before the last data packet
             if chan.eof_received or chan.closed:
@@ -507,8 +609,10 @@ def connect(host: Host, options: SSHOptions, config: Config | None = None) -> SS
         try:
             return SSHTransport(host, replace(options, connect_timeout=max(1.0, share)), config).open()
         except ConnectError as exc:
+            refused_login = (isinstance(exc.__cause__, paramiko.AuthenticationException)
+                             or "No authentication methods" in str(exc.__cause__))
             final = (attempt == CONNECT_TRIES or isinstance(exc, HostKeyError) or deadline - time.monotonic() < 1.5
-                     or isinstance(exc.__cause__, paramiko.AuthenticationException))
+                     or refused_login)
             if final:
                 tries = f" ({attempt} tries within {budget:g}s)" if attempt > 1 else ""
                 hint = UNREACHABLE_HINT if exc.detail.startswith("unreachable:") else ""

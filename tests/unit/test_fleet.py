@@ -95,6 +95,7 @@ def test_minimal_fleet_gets_documented_defaults(fleet_dir: Path) -> None:
 def full_fleet(fleet_dir: Path) -> dict:
     """BASE with every key set."""
     (fleet_dir / "templates").mkdir(exist_ok=True)
+    (fleet_dir / "cfg").write_text("Host amr*\n  User robot\n")
     return merge(BASE, {
         "templates": "./templates", "deploy_root": "/opt/rosdeploy",
         "ssh": {"known_hosts": "~/kh", "config": "cfg", "connect_timeout": "5s", "command_timeout": "2m",
@@ -528,6 +529,18 @@ def test_bad_volumes_name_the_entry_and_the_fix(fleet_dir: Path, volume: Any, wo
 def test_a_file_without_target_is_a_problem_not_a_crash(fleet_dir: Path) -> None:
     found = problems(fleet_dir, {"files": {"params": {"template": "params.yaml"}}})
     assert [(p.key, "required key missing" in p.message) for p in found] == [("files.params.target", True)], found
+
+
+@pytest.mark.parametrize("make, words", [
+    (lambda p: None, "No such file or directory: give the path of an OpenSSH client config file"),
+    (lambda p: p.mkdir(), "is not a regular file"),
+    (lambda p: os.mkfifo(p), "is not a regular file"),                     # was silently nothing
+    (lambda p: p.write_bytes(b"Host x\n\x8f\xff\n"), "is not UTF-8 text"),   # was an internal error
+    (lambda p: p.write_bytes(b"#" * ((1 << 20) + 1)), "is larger than 1 MB"),   # a bigger one, a MemoryError
+])
+def test_an_ssh_config_that_cannot_be_one_is_refused(fleet_dir: Path, make: Any, words: str) -> None:
+    make(fleet_dir / "cfg")
+    one(fleet_dir, {"ssh": {"config": "cfg"}}, "ssh.config", words)
 
 
 @pytest.mark.parametrize("target", ["/", "/.", "/etc/.", "/config//params.yaml", "/config/./params.yaml",

@@ -16,6 +16,7 @@ import sys
 import time
 from pathlib import Path
 
+import paramiko
 import pytest
 
 from rosdeploy.transport import MAX_KNOWN_HOSTS, parse_known_hosts
@@ -83,9 +84,36 @@ def test_plain_keys_still_verify_beside_malformed_lines(keys: dict) -> None:
     lines = [f"127.0.0.1 ssh-ed25519 notbase64!!{RAW}", f"amr1 {' '.join(keys['host'])}",
              "\x00\xff garbage", f"[10.0.0.5]:2222 ssh-rsa AAAA{RAW}"]
     known = parse_known_hosts(lines, "kh")
-    assert known.keys.lookup("amr1") is not None
+    assert known.for_name("amr1").lookup("amr1") is not None
     assert any(w.startswith("kh:1: line(s) 1, 3, 4 skipped") for w in known.warnings), known.warnings
     assert not any(RAW in w for w in known.warnings)
+
+
+def test_a_hashed_name_with_a_bad_salt_is_skipped_not_a_crash(keys: dict) -> None:
+    # paramiko reads the salt only on lookup: every connection raised binascii.Error (internal error)
+    good = paramiko.HostKeys.hash_host("amr2")
+    lines = [f"|1|!!!notbase64|xx= {' '.join(keys['old'])}", f"{good} {' '.join(keys['host'])}",
+             f"amr1 {' '.join(keys['host'])}"]
+    known = parse_known_hosts(lines, "kh")
+    assert known.for_name("amr1").lookup("amr1") and known.for_name("amr2").lookup("amr2")
+    assert known.for_name("amr3").lookup("amr3") is None
+    assert any(w.startswith("kh:1: line(s) 1 skipped") for w in known.warnings), known.warnings
+
+
+def test_a_big_known_hosts_is_not_copied_into_every_connection(keys: dict, monkeypatch: pytest.MonkeyPatch) -> None:
+    # HostKeys.add scans every entry: adding a whole file was quadratic, and 20,000 lines took over 30 s
+    # for each robot's connection. Now a connection gets the keys of its own name only.
+    added: list[str] = []
+    real_add = paramiko.HostKeys.add
+    monkeypatch.setattr(paramiko.HostKeys, "add", lambda self, name, *rest: (added.append(name),
+                                                                            real_add(self, name, *rest))[1])
+    lines = [f"robot{i}.example {' '.join(keys['host'])}" for i in range(3000)]
+    lines.append(f"{paramiko.HostKeys.hash_host('robot7.example')} {' '.join(keys['old'])}")
+    known = parse_known_hosts(lines, "kh")
+    assert added == []
+    found = known.for_name("robot7.example").lookup("robot7.example")
+    assert added == ["robot7.example", "robot7.example"]
+    assert sorted(found.keys()) == sorted([keys["host"][0], keys["old"][0]])
 
 
 @pytest.mark.parametrize("kind", ["fifo", "dev-zero", "directory"])
