@@ -402,14 +402,12 @@ def _ssh_config_file(r: Reader, kp: KeyPath, value: Any) -> Any:
     error, a 1 GB one a MemoryError, a fifo or a folder silently nothing)."""
     path = r.local_path(kp, value)
     try:
-        info = os.stat(path)
+        os.stat(path)
     except OSError as exc:
         raise Invalid(f"{path}: {exc.strerror}: give the path of an OpenSSH client config file") from None
-    if not stat.S_ISREG(info.st_mode):
-        raise Invalid(f"{path} is not a regular file (a fifo, a device or a directory): give the path of an "
-                      "OpenSSH client config file")
-    if info.st_size > MAX_SSH_CONFIG:
-        raise Invalid(f"{path} is larger than {MAX_SSH_CONFIG >> 20} MB: that is no OpenSSH config file")
+    problem = _file_problem(path, MAX_SSH_CONFIG, "an OpenSSH client config file", "OpenSSH config file")
+    if problem:
+        raise Invalid(problem)
     try:
         with open(path, "rb") as handle:
             handle.read(MAX_SSH_CONFIG + 1).decode("utf-8")
@@ -424,14 +422,20 @@ def known_hosts_problem(path: str) -> str | None:
     """Why `path` cannot be a known_hosts file (a fifo hangs the read, /dev/zero fills memory), or
     None; a missing one is each robot's error, as OpenSSH makes it. For ssh.known_hosts and the
     inventory's rosdeploy_known_hosts."""
+    return _file_problem(path, MAX_KNOWN_HOSTS, "a known_hosts file", "known_hosts file")
+
+
+def _file_problem(path: str, limit: int, wanted: str, kind: str) -> str | None:
+    """Why `path` cannot be read as `wanted` (not a regular file, or over `limit` bytes), or None
+    (a missing file included: each caller says what that means)."""
     try:
         info = os.stat(path)
     except OSError:
         return None
     if not stat.S_ISREG(info.st_mode):
-        return f"{path} is not a regular file (a fifo, a device or a directory): give the path of a known_hosts file"
-    if info.st_size > MAX_KNOWN_HOSTS:
-        return f"{path} is larger than {MAX_KNOWN_HOSTS >> 20} MB: that is no known_hosts file"
+        return f"{path} is not a regular file (a fifo, a device or a directory): give the path of {wanted}"
+    if info.st_size > limit:
+        return f"{path} is larger than {limit >> 20} MB: that is no {kind}"
     return None
 
 

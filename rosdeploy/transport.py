@@ -33,9 +33,9 @@ from typing import Callable, Mapping, Protocol, Sequence
 import paramiko
 from fabric import Config, Connection
 
-from rosdeploy import execwait
+from rosdeploy import execwait, yamlsrc
 from rosdeploy.commands import Command
-from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError
+from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError, InputError
 from rosdeploy.fleet import MAX_KNOWN_HOSTS, MAX_SSH_CONFIG
 from rosdeploy.model import Host
 
@@ -110,13 +110,11 @@ def parsed_ssh_config(options: SSHOptions) -> paramiko.SSHConfig:
     config = paramiko.SSHConfig()
     for each in paths:
         try:
-            text = _read_bounded(each, MAX_SSH_CONFIG, "ssh config").decode("utf-8")
+            text = yamlsrc.read_bytes(each, MAX_SSH_CONFIG, "an OpenSSH client config").decode("utf-8")
         except UnicodeDecodeError:
             raise ConnectError("ssh", f"ssh config {each} is not UTF-8 text: fix it") from None
-        except _Unusable as exc:
-            raise ConnectError("ssh", f"ssh config {each} {exc}: fix it") from None
-        except OSError as exc:
-            raise ConnectError("ssh", f"ssh config {each}: {exc.strerror or exc}: fix it") from None
+        except InputError as exc:
+            raise ConnectError("ssh", f"ssh config {each}: {exc.problems[0].message}") from None
         config.parse(io.StringIO(text))
     return config
 
@@ -382,35 +380,25 @@ def _host_keys_file(path: str, mtime_ns: int) -> KnownHosts:
 
 
 def _read_known_hosts(path: str) -> str:
-    try:
-        return _read_bounded(path, MAX_KNOWN_HOSTS, "known_hosts").decode("utf-8", errors="replace")
-    except _Unusable as exc:
-        raise UnusableKnownHosts(path, str(exc)) from None
-
-
-class _Unusable(Exception):
-    """A file that is not a regular one, or too big to be what it should: never read."""
-
-
-def _read_bounded(path: str, limit: int, what: str) -> bytes:
-    """The file's bytes, read only when it is a regular file of at most `limit` bytes: a fifo
-    would hang the run and /dev/zero fill its memory. Opened without blocking (a fifo with no
-    writer) and checked on the open descriptor, so a file swapped after a stat is caught too."""
+    """The file's text, read only when it is a regular file of at most MAX_KNOWN_HOSTS bytes: a
+    fifo would hang the run and /dev/zero fill its memory. Opened without blocking (a fifo with
+    no writer) and checked on the open descriptor, so a file swapped after a stat is caught too."""
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0))
     try:
         mode = os.fstat(fd).st_mode
         if not stat.S_ISREG(mode):
-            raise _Unusable(f"is {_file_kind(mode)}, not a regular file")
+            raise UnusableKnownHosts(path, f"is {_file_kind(mode)}, not a regular file")
         chunks: list[bytes] = []
         size = 0
-        while size <= limit and (chunk := os.read(fd, min(1 << 20, limit + 1 - size))):
+        while size <= MAX_KNOWN_HOSTS and (chunk := os.read(fd, min(1 << 20, MAX_KNOWN_HOSTS + 1 - size))):
             chunks.append(chunk)
             size += len(chunk)
     finally:
         os.close(fd)
-    if size > limit:
-        raise _Unusable(f"is larger than {limit >> 20} MB: that is no {what} file")
-    return b"".join(chunks)
+    if size > MAX_KNOWN_HOSTS:
+        raise UnusableKnownHosts(path, f"is larger than {MAX_KNOWN_HOSTS >> 20} MB: that is no known_hosts file")
+    data = b"".join(chunks)
+    return data.decode("utf-8", errors="replace")
 
 
 def _file_kind(mode: int) -> str:
