@@ -38,9 +38,11 @@ from rosdeploy import __version__
 from rosdeploy.commands import Command
 from rosdeploy.errors import ChannelRefused, ConnectError, HostKeyError, RemoteError
 from rosdeploy.model import Host
-from rosdeploy.transport import Result, SSHOptions, SSHTransport, connect, known_hosts_for, succeeded
+from rosdeploy.transport import (Result, SSHOptions, SSHTransport, connect, known_hosts_for, mtime_ns,
+                                 ssh_config_paths, succeeded)
 
 PROTOCOL = 1
+MAX_SOCKET_PATH = 107     # bytes: sockaddr_un's sun_path, less its NUL
 SPAWN_WAIT = 5.0          # seconds a caller waits for a keeper it started to listen
 REAP_EVERY = 1.0
 _HEADER = struct.Struct("!I")
@@ -158,20 +160,11 @@ def raise_error(host: str, doc: dict) -> None:
 
 
 def connection_key(host: Host, options: SSHOptions) -> tuple:
-    """Same robot, same user and key, same trust files as they are now: same connection.
-    File mtimes are part of it, so an edited known_hosts or ssh_config is honoured at once."""
-    files = [*known_hosts_for(host, options)]
-    if options.ssh_config:
-        files.append(os.path.expanduser(options.ssh_config))
+    """Same robot, same user and key, same trust files and ssh configs as they are now: same
+    connection. File mtimes are part of it, so an edited known_hosts or ssh config is honoured at once."""
+    files = [*known_hosts_for(host, options), *ssh_config_paths(options)]
     return (host.address, host.port, host.user, host.key_file, options.connect_timeout,
-            options.ssh_config, tuple((f, _mtime(f)) for f in files))
-
-
-def _mtime(path: str) -> int:
-    try:
-        return os.stat(path).st_mtime_ns
-    except OSError:
-        return 0
+            options.ssh_config, tuple((f, mtime_ns(f)) for f in files))
 
 
 # ------------------------------------------------------------------ client
@@ -241,7 +234,7 @@ def kept_connect(persist: float) -> Callable[[Host, SSHOptions], Any]:
 
 def dial(persist: float) -> socket.socket:
     """A socket to this build's keeper, starting one if none runs."""
-    path = socket_path(private_dir(control_dir()))
+    path = usable_socket_path()
     sock = _try_dial(path)
     if sock is not None:
         return sock
@@ -317,10 +310,29 @@ def remove_old_builds(path: Path) -> None:
                     old.unlink()
 
 
+def unavailable() -> str | None:
+    """Why no keeper can run here, or None: status, plan and history then connect directly."""
+    try:
+        usable_socket_path()
+    except KeeperUnavailable as exc:
+        return str(exc)
+    return None
+
+
+def usable_socket_path() -> Path:
+    """This build's socket in the control directory; KeeperUnavailable when there can be none
+    (a keeper started for a path too long would fail to listen, at every command)."""
+    path = socket_path(private_dir(control_dir()))
+    if len(os.fsencode(path)) > MAX_SOCKET_PATH:
+        raise KeeperUnavailable(f"its socket path {path} is longer than a unix socket allows "
+                                f"({MAX_SOCKET_PATH} bytes): set ROSDEPLOY_CONTROL_DIR to a shorter directory")
+    return path
+
+
 def ask(message: dict) -> dict | None:
     """One request to a running keeper (`rosdeploy connections`); None when none runs."""
     try:
-        path = socket_path(private_dir(control_dir()))
+        path = usable_socket_path()
     except KeeperUnavailable:
         return None
     sock = _try_dial(path)

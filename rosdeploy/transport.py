@@ -28,7 +28,7 @@ import threading
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass, replace
-from typing import Callable, Mapping, Protocol, Sequence
+from typing import Callable, Iterable, Mapping, Protocol, Sequence
 
 import paramiko
 from fabric import Config, Connection
@@ -96,19 +96,35 @@ def known_hosts_for(host: Host, options: SSHOptions) -> list[str]:
 FABRIC_OVERRIDES = {"load_ssh_configs": True}
 
 
-@functools.lru_cache(maxsize=8)
+def ssh_config_paths(options: SSHOptions) -> list[str]:
+    """The ssh configs read, as fabric reads them: the fleet's file, else the system's then the user's."""
+    if options.ssh_config:
+        return [os.path.expanduser(options.ssh_config)]
+    return [p for p in ("/etc/ssh/ssh_config", os.path.expanduser("~/.ssh/config")) if os.path.exists(p)]
+
+
 def parsed_ssh_config(options: SSHOptions) -> paramiko.SSHConfig:
-    """ssh_config parsed once per run (SSHOptions is frozen, so it keys the cache), not once
-    per robot; SSHConfig lookups only read it, so robot threads share it."""
-    path = os.path.expanduser(options.ssh_config) if options.ssh_config else None
-    if path and not os.path.exists(path):
-        raise ConnectError("ssh", f"ssh config {path} does not exist: fix `ssh.config` in the fleet file")
-    # as fabric reads them (the fleet's file, else the system's then the user's), each read here
-    # bounded: a fifo, /dev/zero or a binary file must not hang, fill memory or crash the run
-    paths = [path] if path else [p for p in ("/etc/ssh/ssh_config", os.path.expanduser("~/.ssh/config"))
-                                 if os.path.exists(p)]
+    """ssh_config parsed once per run, not once per robot; SSHConfig lookups only read it, so
+    robot threads share it. The files' mtimes key the cache with the options: the connection
+    keeper lives on, and an edited config must be read again."""
+    paths = ssh_config_paths(options)
+    if options.ssh_config and not os.path.exists(paths[0]):
+        raise ConnectError("ssh", f"ssh config {paths[0]} does not exist: fix `ssh.config` in the fleet file")
+    return _parsed_ssh_config(options, tuple((p, mtime_ns(p)) for p in paths))
+
+
+def mtime_ns(path: str) -> int:
+    try:
+        return os.stat(path).st_mtime_ns
+    except OSError:
+        return 0
+
+
+@functools.lru_cache(maxsize=8)
+def _parsed_ssh_config(options: SSHOptions, stamps: tuple[tuple[str, int], ...]) -> paramiko.SSHConfig:
+    # each read bounded: a fifo, /dev/zero or a binary file must not hang, fill memory or crash the run
     config = paramiko.SSHConfig()
-    for each in paths:
+    for each, _ in stamps:
         try:
             text = yamlsrc.read_bytes(each, MAX_SSH_CONFIG, "an OpenSSH client config").decode("utf-8")
         except UnicodeDecodeError:
@@ -149,11 +165,18 @@ class SSHTransport:
             files = [_parsed_host_keys(path) for path in known_hosts_for(self.host, self.options)]
         except UnusableKnownHosts as exc:
             raise HostKeyError(self.host.name, f"{exc}: {self._known_hosts_setting(exc.path)}") from exc
-        conn.client.set_missing_host_key_policy(_RejectUnknown(files))
         # the one name paramiko looks up (SSHClient.connect), after ssh_config's HostName and Port
         name = conn.host if conn.port == 22 else f"[{conn.host}]:{conn.port}"
-        for known in files:
-            conn.client.get_host_keys().update(known.for_name(name))
+        keys = _distinct(key for known in files for key in known.keys_for(name))
+        policy = _RejectUnknown(files)
+        if len({key.get_name() for key in keys}) == len(keys):
+            for key in keys:
+                conn.client.get_host_keys().add(name, key.get_name(), key)
+        else:
+            # paramiko keeps one key per type and name, so it would call a robot whose second
+            # key of a type is listed "changed"; OpenSSH accepts any listed key: the policy does
+            policy.listed[name] = keys
+        conn.client.set_missing_host_key_policy(policy)
         return conn
 
     @property
@@ -339,17 +362,28 @@ class KnownHosts:
     revoked: frozenset[tuple[str, bytes]]             # (key type, key blob)
     warnings: tuple[str, ...]
 
-    def for_name(self, name: str) -> paramiko.HostKeys:
-        """The keys of `name`, as paramiko's HostKeys would hold them for the whole file (the last
-        of a key type wins). Only these: building HostKeys of a whole file is quadratic (its add()
-        scans every entry), and 20,000 lines took over 30 s for every robot's connection."""
+    def keys_for(self, name: str) -> list[paramiko.PKey]:
+        """Every key listed for `name`, in file order. Looked up for the one name, never through a
+        HostKeys of the whole file: its add() scans every entry, so 20,000 lines took over 30 s
+        for every robot's connection."""
         found = [i for i in self.hashed if hmac.compare_digest(paramiko.HostKeys.hash_host(name, self.entries[i][0]),
                                                                self.entries[i][0])]
+        return [self.entries[i][1] for i in sorted([*self.plain.get(name, ()), *found])]
+
+    def for_name(self, name: str) -> paramiko.HostKeys:
+        """The keys of `name` as paramiko's HostKeys would hold them (the last of a key type wins)."""
         out = paramiko.HostKeys()
-        for i in sorted([*self.plain.get(name, ()), *found]):
-            key = self.entries[i][1]
+        for key in self.keys_for(name):
             out.add(name, key.get_name(), key)
         return out
+
+
+def _distinct(keys: Iterable[paramiko.PKey]) -> list[paramiko.PKey]:
+    """The keys without repeats: the same line in two files is one key."""
+    seen: dict[tuple[str, bytes], paramiko.PKey] = {}
+    for key in keys:
+        seen.setdefault((key.get_name(), key.asbytes()), key)
+    return list(seen.values())
 
 
 class _RejectUnknown(paramiko.MissingHostKeyPolicy):
@@ -357,10 +391,18 @@ class _RejectUnknown(paramiko.MissingHostKeyPolicy):
 
     def __init__(self, files: list[KnownHosts]) -> None:
         self.revoked = frozenset().union(*(f.revoked for f in files))
+        self.listed: dict[str, list[paramiko.PKey]] = {}    # names with two keys of one type
 
     def missing_host_key(self, client: paramiko.SSHClient, hostname: str, key: paramiko.PKey) -> None:
-        if (key.get_name(), key.asbytes()) in self.revoked:
+        offered = (key.get_name(), key.asbytes())
+        if offered in self.revoked:
             raise RevokedHostKey(f"it offered {key.get_name()} {key.fingerprint}, marked @revoked in known_hosts")
+        listed = self.listed.get(hostname, [])
+        if any((k.get_name(), k.asbytes()) == offered for k in listed):
+            return
+        if listed:
+            same_type = [k for k in listed if k.get_name() == key.get_name()]
+            raise paramiko.BadHostKeyException(hostname, key, (same_type or listed)[0])
         raise UnknownHostKey(f"Server {hostname!r} not found in known_hosts", key)
 
 

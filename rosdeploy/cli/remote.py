@@ -342,5 +342,5 @@ def cmd_connections(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.cli import report
 
     reply = keeper.ask({"op": "exit" if args.close else "list"})
-    report.connections(out, reply, closed=args.close)
+    report.connections(out, reply, closed=args.close, unavailable=keeper.unavailable() if reply is None else None)
     return EXIT_OK

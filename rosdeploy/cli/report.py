@@ -274,13 +274,16 @@ def history(out: Output, rows: Sequence[tuple], limit: int) -> None:
                      f"{e.get('result', '')}  by {e.get('by', '?')}{reason}")
 
 
-def connections(out: Output, reply: dict | None, closed: bool) -> None:
+def connections(out: Output, reply: dict | None, closed: bool, unavailable: str | None = None) -> None:
     held = [] if reply is None else reply.get("connections", [])
     if out.as_json:
         out.document({"keeper": reply is not None, "closed": reply.get("closing", 0) if closed and reply else 0,
-                      "connections": held})
+                      "connections": held, "unavailable": unavailable})
+    elif unavailable:
+        out.line(f"no connection keeper can run: {unavailable}; status, plan and history connect directly")
     elif reply is None:
-        out.line("no connection keeper is running")
+        out.line("no connection keeper is running: status, plan and history start one, and it ends after "
+                 "ssh.persist without use")
     elif closed:
         out.line(f"closed {reply.get('closing', 0)} connection(s); the keeper stops")
     elif not held:

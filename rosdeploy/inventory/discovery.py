@@ -122,9 +122,8 @@ def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
         draft.problems.append(Problem(str(root), None, "", "inventory not found: check -i / the fleet "
                                                            "file's `inventory:` path"))
         return root
-    passwords = _same_files(reader.vault.password_files)
     for path in files:
-        if _same_file(path) in passwords:
+        if is_password_file(path, reader):
             # never read: Ansible would take the password for a host name, and print it
             draft.problems.append(Problem(str(path), None, "", "this is the vault password file, not an inventory: "
                                           + ("move it out of the inventory folder, where every file is read as "
@@ -156,8 +155,10 @@ def _same_file(path: Path | str) -> tuple[int, int] | None:
     return found.st_dev, found.st_ino
 
 
-def _same_files(paths: tuple[str, ...]) -> set[tuple[int, int]]:
-    return {key for key in map(_same_file, paths) if key is not None}
+def is_password_file(path: Path, reader: Reader) -> bool:
+    """Whether `path` is a vault password file: such a file is never read as inventory or vars."""
+    found = _same_file(path)
+    return found is not None and found in {_same_file(p) for p in reader.vault.password_files}
 
 
 def _parse_ini_or_skip(path: Path, read: tuple[str, bool], draft: Draft) -> None:

@@ -116,6 +116,11 @@ def _read_vars_file(path: Path, reader: Reader, draft: Draft) -> Layer | None:
         draft.problems.append(Problem(str(path), None, "", f"a symlink to {shown(os.readlink(path))}, which does not "
                                       "exist: its vars would be lost; fix the link or remove it"))
         return None
+    if discovery.is_password_file(path, reader):
+        # never read: its text would be a YAML string, reported as "must be a mapping"
+        draft.problems.append(Problem(str(path), None, "", "this is the vault password file, not a vars file: "
+                                      "move it out of the inventory folder, where every file is read"))
+        return None
     origin = reader.doc(path, draft.problems)
     if origin is None or origin.doc.data is None:
         return None

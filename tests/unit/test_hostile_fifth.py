@@ -86,6 +86,22 @@ def test_a_password_file_inside_the_inventory_folder_is_refused_unread(capsys: p
         assert not (lab / "out").exists()
 
 
+@pytest.mark.parametrize("where", ["group_vars/all/vault_pass", "host_vars/r1"])
+def test_a_password_file_among_the_vars_files_is_named_for_what_it_is(capsys: pytest.CaptureFixture, lab: Path,
+                                                                      where: str) -> None:
+    # it was read as a vars file: "a vars file must be a mapping", with no word of what the file is
+    inside = lab / "inventory" / where
+    inside.parent.mkdir(parents=True, exist_ok=True)
+    if inside.parent.name == "host_vars":
+        (lab / "inventory" / "host_vars" / "r1.yml").unlink()
+    inside.write_text(password_of(lab) + "\n")
+    code, text = run(capsys, "validate", str(lab / "fleet.yml"), "--vault-password-file", str(inside))
+    assert code == 2, text
+    assert f"{inside}: this is the vault password file, not a vars file: move it out of the inventory folder" \
+        in text, text
+    assert password_of(lab) not in text and "must be a mapping" not in text
+
+
 def test_a_password_file_given_as_the_inventory_is_refused_unread(capsys: pytest.CaptureFixture, lab: Path) -> None:
     password = lab / "pass"
     password.write_text(password_of(lab) + "\n")

@@ -381,3 +381,40 @@ def test_starting_a_keeper_removes_the_files_of_other_builds_whose_keeper_is_gon
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         "keeper-running.lock", "keeper-running.log", "keeper-running.sock",
         "keeper-starting.lock", "keeper-starting.log"]
+
+
+@pytest.mark.parametrize("why", ["open to others", "path too long"])
+def test_connections_says_why_no_keeper_can_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                capsys: pytest.CaptureFixture, why: str) -> None:
+    # it said "no connection keeper is running", as if one could, and status fell back without a word
+    from rosdeploy.cli import main
+    if why == "open to others":
+        control = tmp_path / "cp"
+        control.mkdir(mode=0o755)
+        control.chmod(0o755)
+        expected = f"{control} is open to others (mode 755); `chmod 700 {control}`"
+    else:
+        control = tmp_path / ("d" * 100)
+        expected = "is longer than a unix socket allows (107 bytes): set ROSDEPLOY_CONTROL_DIR"
+    monkeypatch.setenv("ROSDEPLOY_CONTROL_DIR", str(control))
+    assert main(["connections"]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("no connection keeper can run: ") and expected in text, text
+    assert main(["--json", "connections"]) == 0
+    assert expected in __import__("json").loads(capsys.readouterr().out)["unavailable"]
+
+
+def test_connections_without_a_keeper_says_when_one_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                         capsys: pytest.CaptureFixture) -> None:
+    from rosdeploy.cli import main
+    monkeypatch.setenv("ROSDEPLOY_CONTROL_DIR", str(tmp_path / "cp"))
+    assert main(["connections"]) == 0
+    assert "no connection keeper is running: status, plan and history start one" in capsys.readouterr().out
+
+
+def test_a_socket_path_too_long_starts_no_keeper(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # a keeper was started at every command, failed to listen, and the command waited for it
+    monkeypatch.setenv("ROSDEPLOY_CONTROL_DIR", str(tmp_path / ("d" * 100)))
+    monkeypatch.setattr(keeper, "_spawn", lambda path, persist: pytest.fail("a keeper was started"))
+    with pytest.raises(keeper.KeeperUnavailable, match="longer than a unix socket allows"):
+        keeper.dial(5)

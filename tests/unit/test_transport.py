@@ -106,3 +106,36 @@ def test_ssh_failures_say_what_to_check(tmp_path: Path) -> None:
     assert "login as 'robot'" in robot._why(paramiko.SSHException("No authentication methods available"))
     assert "the SSH handshake did not finish within ssh.connect_timeout" in \
         robot._why(paramiko.SSHException("No existing session"))
+
+
+def test_an_edited_ssh_config_is_read_again_by_a_process_that_lives_on(tmp_path: Path) -> None:
+    # the connection keeper made a new connection for an edited config, but with the config as
+    # it first parsed it: the robot's new HostName or Port was never used
+    import os
+    config = tmp_path / "ssh_config"
+    config.write_text("Host amr1\n  HostName 127.0.0.1\n  Port 2311\n")
+    options = SSHOptions(known_hosts=str(tmp_path / "known_hosts"), ssh_config=str(config))
+    first = SSHTransport(Host("amr1", ("all",), {}, "amr1"), options)
+    config.write_text("Host amr1\n  HostName 127.0.0.2\n  Port 2312\n")
+    os.utime(config, ns=(0, os.stat(config).st_mtime_ns + 1_000_000))
+    again = SSHTransport(Host("amr1", ("all",), {}, "amr1"), options)
+    assert (first._conn.host, first._conn.port) == ("127.0.0.1", 2311)
+    assert (again._conn.host, again._conn.port) == ("127.0.0.2", 2312)
+
+
+def test_the_keepers_connection_changes_with_the_users_own_ssh_config(tmp_path: Path, monkeypatch) -> None:
+    # without `ssh.config` in the fleet file, ~/.ssh/config is read, but editing it kept the old connection
+    import os
+
+    from rosdeploy import keeper
+    monkeypatch.setenv("HOME", str(tmp_path))
+    (tmp_path / ".ssh").mkdir()
+    user_config = tmp_path / ".ssh" / "config"
+    user_config.write_text("Host amr1\n  Port 2311\n")
+    options = SSHOptions(known_hosts=str(tmp_path / "known_hosts"))
+    host = Host("amr1", ("all",), {}, "amr1")
+    before = keeper.connection_key(host, options)
+    user_config.write_text("Host amr1\n  Port 2312\n")
+    os.utime(user_config, ns=(0, os.stat(user_config).st_mtime_ns + 1_000_000))
+    assert keeper.connection_key(host, options) != before
+    assert SSHTransport(host, options)._conn.port == 2312
