@@ -34,7 +34,7 @@ from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.owner import Controller, dead_run, describe, record, this_controller
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
-from rosdeploy.robot import (RobotState, parse_state, passed_gate, release_services,
+from rosdeploy.robot import (RobotState, deployed, parse_state, passed_gate, release_services,
                             rollback_target, unhealthy_services)
 from rosdeploy.transport import Result, SSHOptions, Transport, connect
 
@@ -414,7 +414,7 @@ def mount_sources(spec: FleetSpec) -> dict[str, str]:
 
 
 def up_to_date(state: RobotState, release: RenderedRelease, spec: FleetSpec) -> bool:
-    if state.current != release.release_id:
+    if not deployed(state, release):      # the id, and the manifest as status reads it
         return False
     # A container an earlier release started and this one left alone carries this release's hash.
     wanted = restarts.release_hashes(release)
@@ -596,6 +596,27 @@ def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict
                       + back.reason, **failed)
 
 
+def _rollback_refused(run: RobotRun, state: RobotState, target: str, flavor: str, verdict: Verdict,
+                      base: dict) -> HostResult:
+    """A rollback's target that never passed its gate here failed it now: it is not
+    activated; the release the rollback left starts again, as the guard does for it."""
+    why = f"{target} never passed its gate on this robot and failed it now: {verdict.reason}"
+    logs = run.logs_of(verdict) if verdict.containers else {}
+    left = state.current
+    run.history({"event": "rollback", "release": target, "from": left, "result": "failed",
+                 "reason": verdict.reason, "compose": flavor})
+    if left is None or left not in state.releases:
+        with run.step("stop failed release"):
+            run.t.run(commands.down(run.root, run.spec.project, target, flavor))
+        return run.result(FAILED, reason=why + "; no activated release to go back to, so it was stopped",
+                          failed_service=verdict.service, logs=logs, **{**base, "running_release": None})
+    back = run.start(left, flavor, together=True, services=run.kept_services(left))
+    run.history({"event": "auto-rollback", "release": left, "rolled_back_from": target,
+                 "result": "active" if back.ok else "unhealthy", "reason": verdict.reason, "compose": flavor})
+    again = f"back on {left}" if back.ok else f"{left} started again but is unhealthy: {back.reason}"
+    return run.result(FAILED, reason=f"{why}; {again}", failed_service=verdict.service, logs=logs, **base)
+
+
 def _host_changes(run: RobotRun, release: str, devices: tuple[str, ...] = ()) -> bool:
     """Install `release`'s host changes (udev rules, log rotation), then check that `devices`
     resolve; a step with the robot's notes either way."""
@@ -646,6 +667,8 @@ def rollback_host(ctx: RunContext, host: Host, to_version: str | None = None,
                   to_release: str | None = None) -> HostResult:
     """Switch to a kept release without pulling: the previous one, a version, or an exact release id."""
     run = RobotRun(ctx, host)
+    if ctx.cancel.is_set():
+        return run.result(SKIPPED, reason="interrupted before this robot started: nothing was switched")
     try:
         run.open()
         return _rollback(run, to_version, to_release)
@@ -699,7 +722,8 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     manifest = state.kept_manifests.get(target)
     services = release_services(manifest) if manifest is not None else None
     run.rollback_to(state, target, flavor, services)
-    verdict = run.start(target, flavor, together=passed_gate(state, target), services=services)
+    gated = passed_gate(state, target)
+    verdict = run.start(target, flavor, together=gated, services=services)
     if not verdict.ok and run.armed is not None and _engine_gone(verdict, target):
         # dockerd went away under the switch (the robot is rebooting, or its engine restarts):
         # activating would name a release none of which runs, and the stopped containers of the
@@ -708,6 +732,8 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
         run.locked = False
         return run.result(FAILED, reason=f"the switch to {target} did not start ({verdict.reason})"
                                          f"{run.guard_note()}", **base)
+    if not verdict.ok and not gated:
+        return _rollback_refused(run, state, target, flavor, verdict, base)
     _host_changes(run, target)   # the kept release's rules, after the switch (one round trip to it)
     run.activate(target, {"event": "rollback", "release": target, "rolled_back_from": state.current,
                           "result": "active" if verdict.ok else "unhealthy", "reason": "operator rollback",

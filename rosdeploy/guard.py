@@ -26,6 +26,7 @@ from it; commands.py builds the commands that arm and disarm it.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
@@ -74,6 +75,17 @@ class Guard:
         return f"reverts to {self.previous}" if self.previous else f"stops {self.target}"
 
 
+# A number the robot sends (a clock, a deadline, free space): ASCII digits only (str.isdigit()
+# takes "²", which int() refuses), and few enough for any real value (int() refuses 5,000).
+_DIGITS = re.compile(r"[0-9]{1,18}")
+
+
+def digits(text: str | None) -> int | None:
+    """A whole number from the robot; None for anything else."""
+    text = (text or "").strip()
+    return int(text) if _DIGITS.fullmatch(text) else None
+
+
 def parse_guard(text: str | None, acting: bool = False) -> Guard | None:
     """The state file: `key=value` lines; a later line wins (a re-arm appends)."""
     if not text or not text.strip():
@@ -85,11 +97,10 @@ def parse_guard(text: str | None, acting: bool = False) -> Guard | None:
             values[key.strip()] = value
     if not values.get("run"):
         return None
-    deadline = values.get("deadline", "")
     return Guard(run=values["run"], by=values.get("by", ""), mode=values.get("mode", "revert"),
                  phase=values.get("phase", "prepare"), target=values.get("target", ""),
                  previous=values.get("previous") or None,
-                 deadline=int(deadline) if deadline.isdigit() else None, boot=values.get("boot", ""),
+                 deadline=digits(values.get("deadline")), boot=values.get("boot", ""),
                  acting=acting, reason=values.get("reason", ""), gated=values.get("gated", "yes") == "yes")
 
 

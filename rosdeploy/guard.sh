@@ -101,6 +101,13 @@ entry() {
   printf '{"by": "guard (run %s by %s)", "compose": "%s", "event": "%s", "from": "%s", "reason": "%s", "release": %s, "result": "%s"%s, "run": "%s", "time": "%s"}\n' \
     "$run" "$(clean "$by")" "$flavor" "$1" "$previous" "$(clean "$4")" "$rel" "$3" "$back" "$run" "$(date -u +%Y-%m-%dT%H:%M:%S+00:00)"
 }
+# record ENTRY-ARGS...: the entry as a line of its own in the history, also after a last
+# line a power loss cut short (as scripts/_files.sh's append)
+record() {
+  f=$dir/history.jsonl
+  [ ! -s "$f" ] || [ -z "$(tail -c 1 "$f")" ] || printf '\n' >> "$f"
+  entry "$@" >> "$f"
+}
 
 # host_back RELEASE: its udev rules and log rotation again (rosdeploy/scripts/hostchanges-restore.sh,
 # which the controller's host-changes step left in $dir/.host/)
@@ -115,12 +122,11 @@ revert() {
     sh "$g/up.sh" "$root" "$project" "$previous" "$flavor" together "" >> "$g/log" 2>&1
     host_back "$previous"
     if wait_ok "$previous" "$gate"; then result=active; else result=unhealthy; fi
-    entry guard-rollback "$previous" "$result" "$1" "$target" >> "$dir/history.jsonl"
+    record guard-rollback "$previous" "$result" "$1" "$target"
   else
     say "no activated release to go back to: stopping $target ($1)"
     (cd "$dir/releases/$target" && compose -p "$project" -f compose.yml down --remove-orphans) >> "$g/log" 2>&1
-    entry guard-rollback "" stopped "$1; no activated release to go back to, so $target was stopped" "$target" \
-      >> "$dir/history.jsonl"
+    record guard-rollback "" stopped "$1; no activated release to go back to, so $target was stopped" "$target"
   fi
 }
 
@@ -173,13 +179,12 @@ act() {
   say "acting on run $run: $reason (mode $mode, phase $phase)"
   if [ "$phase" = prepare ] && [ "$mode" = rollback ]; then
     previous=$(readlink "$dir/current" 2>/dev/null); previous=${previous##*/}
-    entry guard-rollback "$previous" unchanged "$reason before the rollback switched anything: nothing changed" \
-      >> "$dir/history.jsonl"
+    record guard-rollback "$previous" unchanged "$reason before the rollback switched anything: nothing changed"
   elif [ "$mode" = rollback ]; then
     finish_rollback "$reason"
   elif [ "$phase" = prepare ]; then
     host_back "$previous"     # installed after the upload, before anything started
-    entry guard-rollback "$previous" unchanged "$reason before $target started: nothing changed" >> "$dir/history.jsonl"
+    record guard-rollback "$previous" unchanged "$reason before $target started: nothing changed"
   elif [ "$mode" = finish ]; then
     if gate_ok; then
       say "gate passed: activating $target"
@@ -216,6 +221,8 @@ if [ -f "$g/acting" ]; then
   act
 fi
 [ -f "$g/state" ] || leave
+# A start that replaced a leaving guard may have lost its `container` file to that guard's leave
+printf '%s\n' "$name" > "$g/container"
 run=$(get run "$g/state" 2>/dev/null)
 boot=$(cat /proc/sys/kernel/random/boot_id 2>/dev/null)
 restarted=no

@@ -3,11 +3,18 @@
 `Output` writes human text to a terminal and, with json=True, keeps stdout for
 one JSON document so CI can parse it while humans still see errors on stderr.
 Secrets registered with `mask()` are replaced in every line written.
+
+Text from robots (history, lock owners, manifests, container labels) goes into these lines,
+and a robot may be corrupt or hostile: every control character written is shown escaped
+(`\x1b`), never obeyed, so no robot sets the terminal's title, clears it, or fakes another
+robot's lines. Only the colour Output paints itself reaches the terminal as escape codes.
 """
 from __future__ import annotations
 
 import json
 import os
+import re
+import secrets
 import sys
 import threading
 from typing import Any, Iterable, Sequence, TextIO
@@ -70,11 +77,11 @@ class Output:
         text = json.dumps(data, indent=2, sort_keys=True, default=str)
         if "\\udc" in text:    # a non-UTF-8 byte from argv or a file name: a lone surrogate, not Unicode
             text = json.dumps(_unicode(data), indent=2, sort_keys=True, default=str)
-        self._write(self.stdout, text)
+        self._write(self.stdout, text)   # json.dumps escaped every control character already
         self.documented = True
 
     def table(self, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
-        rows = [[str(c) for c in row] for row in rows]
+        rows = [[one_line(c) for c in row] for row in rows]   # a cell is one line, escaped before it is measured
         widths = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(header)]
         fmt = "  ".join(f"{{:<{w}}}" for w in widths)
         # one write: a line each was a flush (a syscall) and a masking pass per robot
@@ -91,7 +98,7 @@ class Output:
         log gets plain lines instead (see cli.report.progress_view)."""
         with self._lock:
             self._erase_live()
-            self._live = [self.masked(line) for line in lines]
+            self._live = [one_line(self.masked(line)) for line in lines]   # the region's height is its line count
             self._draw_live()
 
     def _erase_live(self) -> None:
@@ -101,18 +108,47 @@ class Output:
 
     def _draw_live(self) -> None:
         if self._live:
-            self.stdout.write("".join(line + "\n" for line in self._live))
+            self.stdout.write("".join(_shown(line) + "\n" for line in self._live))   # its painted marks too
             self.stdout.flush()
 
     def _write(self, stream: TextIO, text: str) -> None:
         with self._lock:
             self._erase_live()
-            stream.write(self.masked(text) + "\n")
+            stream.write(_shown(self.masked(text)) + "\n")
             stream.flush()
             self._draw_live()
 
 
 _STYLES = {"red": "31", "green": "32", "yellow": "33", "bold": "1", "dim": "2"}
+
+# Colour is painted as a mark, turned into its escape code only when written: the key is random
+# per process (private-use characters, which no secret holds), so text from a robot cannot carry
+# a mark, and every escape code it does carry is escaped with the rest of its control characters.
+_KEY = "".join(chr(0xF0000 + secrets.randbelow(0xFFFE)) for _ in range(4))
+_MARK = re.compile(f"{_KEY}([0-9]+){_KEY}")
+# C0 and C1 controls and DEL; lone surrogates too (no terminal encoding writes them).
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\ud800-\udfff]")
+
+
+def one_line(value: object) -> str:
+    """`value` as text on one line: a newline inside a value must not start a line of its own
+    (one robot's text would read as another robot's line)."""
+    return _CONTROL.sub(_escaped, str(value))
+
+
+def _shown(text: str) -> str:
+    """Text as written: control characters escaped but the newlines and tabs a multi-line text
+    is made of; the marks painted as colour."""
+    parts = _MARK.split(text)
+    parts[::2] = [_CONTROL.sub(lambda m: m[0] if m[0] in "\n\t" else _escaped(m), p) for p in parts[::2]]
+    parts[1::2] = [f"\033[{code}m" for code in parts[1::2]]
+    return "".join(parts)
+
+
+def _escaped(match: re.Match[str]) -> str:
+    code = ord(match[0])
+    named = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}.get(match[0])
+    return named or (f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}")
 
 
 def _unicode(data: Any) -> Any:
@@ -132,7 +168,7 @@ def _unicode(data: Any) -> Any:
 
 
 def _paint(text: str, style: str, color: bool) -> str:
-    return f"\033[{_STYLES[style]}m{text}\033[0m" if color else text
+    return f"{_KEY}{_STYLES[style]}{_KEY}{text}{_KEY}0{_KEY}" if color else text
 
 
 def _isatty(stream: TextIO) -> bool:

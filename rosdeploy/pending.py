@@ -54,11 +54,42 @@ def record_path(fleet_path: str) -> Path:
 
 
 def load(fleet_path: str) -> dict[str, Entry]:
+    return read(fleet_path)[0]
+
+
+def read(fleet_path: str) -> tuple[dict[str, Entry], str | None]:
+    """The record's entries, and what is wrong with it when it is not a record rosdeploy
+    writes (edited, truncated, another tool's): such a record counts as none, and the next
+    apply writes a good one over it."""
+    path = record_path(fleet_path)
     try:
-        data = json.loads(record_path(fleet_path).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    return {h: Entry(**e) for h, e in data.get("hosts", {}).items()}
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return {}, None
+    except (OSError, ValueError) as exc:
+        return {}, f"{path}: unreadable ({exc}); ignored"
+    entries = _entries(data)
+    if entries is None:
+        return {}, f"{path}: not a pending record rosdeploy writes; ignored (the next apply replaces it)"
+    return entries, None
+
+
+_FIELDS = {"host": str, "outcome": str, "reason": str, "version": str, "since": str, "run": str}
+
+
+def _entries(data: object) -> dict[str, Entry] | None:
+    """The entries of a record as save() writes it; None when it is anything else."""
+    hosts = data.get("hosts") if isinstance(data, dict) else None
+    if not isinstance(hosts, dict):
+        return None
+    entries = {}
+    for name, e in hosts.items():
+        if not isinstance(e, dict) or set(e) - {"opens"} != set(_FIELDS):
+            return None
+        if not all(isinstance(e[k], kind) for k, kind in _FIELDS.items()) or not isinstance(e.get("opens", ""), str):
+            return None
+        entries[name] = Entry(**e)
+    return entries
 
 
 def for_version(entries: Mapping[str, Entry], version: str) -> dict[str, Entry]:

@@ -13,7 +13,7 @@ from rosdeploy.model import Host, RenderedRelease
 from rosdeploy.commands import parse_sections
 from rosdeploy.owner import describe, holder_alive
 from rosdeploy.results import version_of
-from rosdeploy.robot import RobotState, unhealthy_services
+from rosdeploy.robot import UNKNOWN_OWNER, RobotState, deployed, unhealthy_services
 
 
 @dataclass(frozen=True)
@@ -68,16 +68,18 @@ def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) ->
     problems = unhealthy_services(state.containers, expected_services(ctx.spec)) if state.current else {}
     alive = holder_alive(state.lock, ctx.controller)
     word, reason = status_word(state, problems, alive)
+    if state.current and state.manifest is None:
+        reason = "; ".join(filter(None, [reason, "current/manifest.json is missing or unreadable"]))
     guard = state.guard
-    drift = None if release is None or not state.current else manifest.get("digest") != release.digest
+    drift = None if release is None or not state.current else not deployed(state, release)
     host_drift = hostchanges.drift(state.host_files, release, ctx.spec.project) if release and drift is False else ()
     if host_drift:
         drift = True
         reason = "; ".join(filter(None, [reason, "host changes differ on the robot (" + ", ".join(host_drift)
                                           + "): `apply` puts them back"]))
     return RobotStatus(
-        host.name, True, release=state.current, version=manifest.get("version"),
-        digest=manifest.get("digest"), drift=drift, host_drift=host_drift,
+        host.name, True, release=state.current, version=_text(manifest, "version"),
+        digest=_text(manifest, "digest"), drift=drift, host_drift=host_drift,
         healthy=word == "healthy", problems=problems,
         lock_alive=alive, running_release=state.running_release,
         active=None if state.running_release is None else state.running_release == state.current,
@@ -85,8 +87,24 @@ def status_host(ctx: RunContext, host: Host, release: RenderedRelease | None) ->
         state=word, reason=reason,
         services=tuple({"service": c.service, "status": c.status, "health": c.health, "restarts": c.restarts,
                         "image": c.image} for c in state.containers),
-        deployed_by=manifest.get("deployed_by"), deployed_at=manifest.get("deployed_at"),
-        lock=state.lock, app_lock=hold.app_locks(ctx, host), images=manifest.get("pins") or {})
+        deployed_by=_text(manifest, "deployed_by"), deployed_at=_text(manifest, "deployed_at"),
+        lock=state.lock, app_lock=hold.app_locks(ctx, host), images=_mapping(manifest, "pins"))
+
+
+def _text(manifest: Mapping[str, Any], key: str) -> str | None:
+    """A manifest field shown as text; None when the robot's manifest holds something else there."""
+    value = manifest.get(key)
+    return value if isinstance(value, str) else None
+
+
+def _mapping(manifest: Mapping[str, Any], key: str) -> Mapping[str, Any]:
+    value = manifest.get(key)
+    return value if isinstance(value, dict) else {}
+
+
+def _guard_runs(status: str | None) -> bool:
+    """The guard's container as dockerd reports it; None: not asked (an older state script)."""
+    return status is None or status in ("running", "restarting", "created")
 
 
 def status_word(state: RobotState, problems: Mapping[str, str], lock_alive: bool | None) -> tuple[str, str]:
@@ -106,12 +124,21 @@ def status_word(state: RobotState, problems: Mapping[str, str], lock_alive: bool
         cut_off = lock.get("run") != guard.run or lock_alive is False
         word = "INTERRUPTED" if cut_off else "DEPLOYING"
         gone = " (its process is gone)" if lock_alive is False else ""
+        if cut_off and not _guard_runs(state.guard_container):
+            return word, (f"{where}; {who}{gone}; NO GUARD RUNS on the robot (its container: "
+                          f"{state.guard_container}): nothing acts at the deadline; `apply` ends this deploy")
         return word, f"{where}; {who}{gone}; guard {guard.will} {when}"
+    if lock == UNKNOWN_OWNER:
+        return "LOCKED", (f"{where}; locked by an unknown owner (its .lock has no readable owner record): if no "
+                          "run is going on, `apply --break-lock` clears it")
     if lock:
         who = describe(lock)
         if lock_alive is False:
             return "INTERRUPTED", f"{where}; locked by {who}, whose process is gone: the next apply takes it over"
         return ("DEPLOYING" if lock_alive else "LOCKED"), f"{where}; locked by {who}"
+    if state.foreign_current:
+        return "FOREIGN", (f"`current` points at {state.foreign_current}, not a release rosdeploy deployed "
+                           "here (outside releases/, or gone): `apply` deploys one")
     if running not in (None, current):
         if current is None:
             return "UNGATED", f"{where}: these containers never passed a gate here (not deployed)"
@@ -163,7 +190,7 @@ def plan_host(ctx: RunContext, host: Host, release: RenderedRelease) -> RobotPla
                                      {c.service: c.hash for c in state.containers if c.status == "running"})
     pulls = tuple(line.split(" ", 1)[1] for line in sections.get("images", "").splitlines()
                   if line.startswith("missing "))
-    same = state.current == release.release_id
+    same = deployed(state, release)
     return RobotPlan(host.name, True, current=state.current, new=release.release_id,
                      up_to_date=same, diffs=diffs, pulls=pulls,
                      host_drift=hostchanges.drift(state.host_files, release, ctx.spec.project) if same else (),

@@ -5,14 +5,14 @@ from typing import Any, Callable, Sequence
 
 from rosdeploy import pending
 from rosdeploy.model import Host
-from rosdeploy.output import Output
+from rosdeploy.output import Output, one_line
 from rosdeploy.results import FleetResult
 
 
 def with_pending(project: Any, hosts: Sequence[Host], out: Output) -> tuple[Host, ...]:
     """The targets, plus the robots still pending for this fleet file and version (even when
     --limit leaves them out): a plain `apply` picks them up."""
-    waiting = pending.for_version(pending.load(project.spec.path), project.spec.version)
+    waiting = pending.for_version(_load(project.spec.path, out), project.spec.version)
     named = {h.name for h in hosts}
     extra = [h for h in project.targets(None) if h.name in waiting and h.name not in named]
     if extra:
@@ -32,7 +32,7 @@ def notifier(out: Output, spec: Any, run_id: str, inner: Callable[[str, dict], N
         out.line(out.paint(f"-- {len(data['robots'])} robot(s) pending", "bold"))
         for robot in data["robots"]:
             out.line(f"   {robot['host']}: {robot['outcome']}, next try in {robot['next_try']:g}s: "
-                     f"{robot['reason'][:160]}")
+                     f"{one_line(robot['reason'][:160])}")
     return notify
 
 
@@ -44,26 +44,47 @@ def after_apply(spec: Any, result: FleetResult) -> None:
     record(spec, result.hosts, result.run_id)
 
 
-def status_rows(rows: Sequence[Any], spec: Any) -> list:
+def _load(fleet_path: str, out: Output) -> dict[str, pending.Entry]:
+    """The pending record; one that is not what rosdeploy writes is named in a warning, and ignored."""
+    entries, problem = pending.read(fleet_path)
+    if problem:
+        out.warn(f"warning: pending record {problem}")
+    return entries
+
+
+class StatusRows(list):
+    """Status rows, and what was wrong with the pending record read for them: status_notes,
+    which has the Output, warns about it."""
+    problem: str | None = None
+
+
+def status_rows(rows: Sequence[Any], spec: Any) -> StatusRows:
     """Status rows with their robot's pending entry (any version: a pending robot of an older
     version is worth seeing too, it is what the last apply could not do)."""
     from dataclasses import replace
 
-    entries = pending.load(spec.path)
-    return [replace(r, pending=entries[r.host].to_json()) if r.host in entries else r for r in rows]
+    entries, problem = pending.read(spec.path)
+    out = StatusRows(replace(r, pending=entries[r.host].to_json()) if r.host in entries else r for r in rows)
+    out.problem = problem
+    return out
 
 
 def status_notes(out: Output, rows: Sequence[Any]) -> None:
     """Below the status table: pending robots, and held application lock files with their age."""
+    problem = getattr(rows, "problem", None)
+    if problem:
+        out.warn(f"warning: pending record {problem}")
     if out.as_json:
         return
     for r in rows:
         if getattr(r, "pending", None):
             p = r.pending
-            out.line(f"{r.host}: PENDING {p['outcome']} for {p['version']} since {p['since']}: {p['reason'][:160]}")
+            out.line(f"{r.host}: PENDING {one_line(p['outcome'])} for {one_line(p['version'])} since "
+                     f"{one_line(p['since'])}: {one_line(p['reason'][:160])}")
         for lock in getattr(r, "app_lock", None) or ():
             age = lock.get("age")
-            out.line(f"{r.host}: app lock {lock['path']} held by {lock['holder']} since {lock['since']}"
+            out.line(f"{r.host}: app lock {one_line(lock['path'])} held by {one_line(lock['holder'])} "
+                     f"since {one_line(lock['since'])}"
                      + (f" ({_age(age)} ago)" if age is not None else ""))
 
 

@@ -12,9 +12,9 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
-from rosdeploy.output import Output, confirm
+from rosdeploy.output import Output, confirm, one_line
 from rosdeploy.results import OK_OUTCOMES, OUTCOMES, UNCHANGED, FleetResult, HostResult, version_of
 
 
@@ -110,7 +110,7 @@ class Board:
         widths = [max(len(t[i]) for t in table) for i in range(3)]
         lines = [f"{a:<{widths[0]}}  {b:<{widths[1]}}  {c:<{widths[2]}}  {d}".rstrip() for a, b, c, d in table]
         lines.append(_counts([r for _, r in rows], now - self.started, len(rows) - len(shown)))
-        return [line[:width] for line in lines]
+        return [one_line(line)[:width] for line in lines]    # escaped, then cut: one terminal line each
 
     def tick(self) -> None:
         while not self.stop.wait(self.TICK):
@@ -179,9 +179,10 @@ def rollout_notifier(out: Output, args: argparse.Namespace,
     return notify
 
 
-def summary(out: Output, result: FleetResult, folder: Path) -> None:
+def summary(out: Output, result: FleetResult, folder: Path | None) -> None:
+    """`folder` None: the run record could not be written (a warning said why)."""
     if out.as_json:
-        out.document({**result.to_json(), "run_dir": str(folder)})
+        out.document({**result.to_json(), "run_dir": str(folder) if folder else None})
         return
     rows = [_row(h) for h in result.hosts]
     out.line()
@@ -200,7 +201,8 @@ def summary(out: Output, result: FleetResult, folder: Path) -> None:
         counts[h.outcome] = counts.get(h.outcome, 0) + 1
     tally = ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
     style = "green" if result.ok else "red"
-    out.line(out.paint(f"{result.command}: {tally} in {result.seconds:.1f}s", style) + f"  (record: {folder})")
+    record = f"record: {folder}" if folder else "no run record: see the warning above"
+    out.line(out.paint(f"{result.command}: {tally} in {result.seconds:.1f}s", style) + f"  ({record})")
 
 
 def _row(h: HostResult) -> list[str]:
@@ -268,10 +270,19 @@ def history(out: Output, rows: Sequence[tuple], limit: int) -> None:
         out.line(out.paint(host, "bold") + ("" if ok else f": UNREACHABLE: {err}")
                  + (": no deploys yet" if ok and not entries else ""))
         for e in entries[:limit]:
-            detail = f" from {e['rolled_back_from']}" if e.get("rolled_back_from") else ""
-            reason = f" ({e['reason']})" if e.get("reason") else ""
-            out.line(f"  {e.get('time', '?')}  {e.get('event', '?'):<13} {e.get('release', '?')}{detail}  "
-                     f"{e.get('result', '')}  by {e.get('by', '?')}{reason}")
+            out.line(_entry_line(e))
+
+
+def _entry_line(e: Mapping[str, Any]) -> str:
+    """One history entry on one line. Its fields are the robot's: any JSON, a newline included."""
+    def field(key: str, missing: str = "?") -> str:
+        value = e.get(key)
+        return missing if value is None else one_line(value)
+
+    detail = f" from {field('rolled_back_from')}" if e.get("rolled_back_from") else ""
+    reason = f" ({field('reason')})" if e.get("reason") else ""
+    return (f"  {field('time')}  {field('event'):<13} {field('release')}{detail}  "
+            f"{field('result', '')}  by {field('by')}{reason}")
 
 
 def connections(out: Output, reply: dict | None, closed: bool, unavailable: str | None = None) -> None:

@@ -2,5 +2,11 @@
 # Shell built-ins for the small files: each program started (cat, ls, grep) is a fork
 # and an exec, and `status` runs this on every robot at once.
 
-show() { [ -r "$1" ] || return 0; while IFS= read -r line || [ -n "$line" ]; do printf '%s\n' "$line"; done < "$1"; }
+# Regular files only: a link to /dev/zero or a fifo where a small file belongs would spin or hang.
+show() { [ -f "$1" ] && [ -r "$1" ] || return 0; while IFS= read -r line || [ -n "$line" ]; do printf '%s\n' "$line"; done < "$1"; }
 contains() { case $(show "$1") in *"$2"*) return 0 ;; esac; return 1; }
+# append FILE LINE: a line of its own, also after a last line a power loss cut short
+append() {
+  [ ! -s "$1" ] || [ -z "$(tail -c 1 "$1")" ] || printf '\n' >> "$1"
+  printf '%s\n' "$2" >> "$1"
+}

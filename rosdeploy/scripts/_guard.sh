@@ -47,10 +47,17 @@ start_guard() {
   # waits for that one rather than replacing its container.
   i=0
   until mkdir "$g/.starting" 2>/dev/null; do
-    [ $i -lt 100 ] || return 1
+    # 10 s: no start takes that long; one left by a robot that restarted mid-start would bar every run
+    [ $i -lt 100 ] || { rmdir "$g/.starting" 2>/dev/null; i=0; continue; }
     i=$((i + 1)); sleep 0.1
   done
-  [ ! -f "$g/container" ] || { rmdir "$g/.starting"; return 0; }
+  # `container`: a guard is starting or stays (guard.sh's leave removes it before it looks
+  # for a new run's state). Checked against dockerd: a guard removed by hand, or one that left
+  # in a way nothing saw, must not keep every later run unguarded.
+  if [ -f "$g/container" ]; then
+    if docker inspect "$guard_name" >/dev/null 2>&1; then rmdir "$g/.starting"; return 0; fi
+    rm -f "$g/container"
+  fi
   started_guard "$@"; code=$?
   rmdir "$g/.starting"
   return $code
@@ -59,11 +66,14 @@ started_guard() {
   for img in "$@"; do
     tries=0
     while :; do
+      # Written before the start, never after: a guard with no run to guard leaves at once,
+      # and its leave must find (and remove) this file, not be followed by it.
+      printf '%s\n' "$guard_name" > "$g/container"
       if docker run -d --pull never --name "$guard_name" --label "rosdeploy.guard=$project" --restart always \
            --network none --no-healthcheck --user 0:0 -e HOME="$HOME" -v /:/host --entrypoint chroot "$img" \
            --userspec="$(id -u):$(id -g)" --groups="$(id -G | tr ' ' ,)" \
            /host /bin/sh "$g/guard.sh" "$g" "$guard_name" >/dev/null 2>>"$g/log"; then
-        printf '%s\n' "$guard_name" > "$g/container"; return 0
+        return 0
       fi
       docker rm -f "$guard_name" >/dev/null 2>&1     # one leaving, a stale one, or no chroot in $img
       tries=$((tries + 1))
@@ -77,6 +87,7 @@ started_guard() {
       fi
     done
   done
+  rm -f "$g/container"
   echo "no image to run the deploy guard from: $*" >> "$g/log"; return 1
 }
 # arm STATE SECONDS FILE*6 IMAGE...: write the guard's files and state, start its container
@@ -93,6 +104,6 @@ arm() {
   unclaim
   # Detached from this step's output (dash keeps a redirected function call's pipe open)
   # shellcheck disable=SC2046 # one image a word: images.txt is rosdeploy's, one name a line
-  [ -f "$g/container" ] || ( exec </dev/null >/dev/null 2>&1
+  ( exec </dev/null >/dev/null 2>&1
     start_guard $(cat "$dir/current/images.txt" 2>/dev/null) "$@" ) &
 }

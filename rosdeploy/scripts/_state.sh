@@ -12,12 +12,38 @@ section dir; printf '%s\n' "$dir"
 section current; readlink "$dir/current" 2>/dev/null || true
 section manifest; show "$dir/current/manifest.json"
 section lock; show "$dir/.lock/owner"
-section releases; for r in "$dir"/releases/*; do [ -e "$r" ] && printf '%s\n' "${r##*/}"; done
-section history; tail -n 50 "$dir/history.jsonl" 2>/dev/null || true
+# held with no readable owner (a controller killed between its mkdir and the owner's write)
+section lockdir; if [ -d "$dir/.lock" ]; then echo yes; fi
+kept=
+section releases; for r in "$dir"/releases/*; do [ -e "$r" ] && printf '%s\n' "${r##*/}" && kept="$kept ${r##*/}"; done
+# The last 50 lines; then, under `gates`, the older lines that still decide a rollback: each
+# kept release's last activation and the last rollback away from it (a run of failed deploys
+# must not push the release to go back to out of sight, nor may the whole file be sent).
+section history
+[ ! -f "$dir/history.jsonl" ] || awk -v n=50 -v kept="$kept" '
+  BEGIN { k = split(kept, ks, " ") }
+  { b[NR % n] = $0
+    for (i = 1; i <= k; i++) {
+      q = "\"" ks[i] "\""
+      if (index($0, "\"release\": " q) && index($0, "\"result\": \"active\"")) { a[i] = NR; at[i] = $0 }
+      if (index($0, "\"rolled_back_from\": " q)) { f[i] = NR; ft[i] = $0 }
+    } }
+  END {
+    first = NR > n ? NR - n + 1 : 1
+    for (i = first; i <= NR; i++) print b[i % n]
+    printf "\n@@gates\n"
+    for (i = 1; i <= k; i++) { if (a[i] && a[i] < first) o[a[i]] = at[i]; if (f[i] && f[i] < first) o[f[i]] = ft[i] }
+    for (i = 1; i < first; i++) if (i in o) print o[i]
+  }' "$dir/history.jsonl" 2>/dev/null || true
 section guard; show "$dir/.guard/state"
 section guard-acting; show "$dir/.guard/acting"
 # The robot's clock, for the guard's deadline: only when one is armed (a fork otherwise saved)
-if [ -e "$dir/.guard/state" ] || [ -e "$dir/.guard/acting" ]; then section clock; date +%s; fi
+# and whether its container is there: a guard that state promises but dockerd does not run
+# cannot act, and status must not say it will
+if [ -e "$dir/.guard/state" ] || [ -e "$dir/.guard/acting" ]; then
+  section clock; date +%s
+  section guard-container; docker inspect -f '{{.State.Status}}' "rosdeploy-guard-$project" 2>/dev/null || echo none
+fi
 section boot; show /proc/sys/kernel/random/boot_id
 # shellcheck disable=SC2154 # mode: set by the script (state.sh, locked-state.sh)
 if [ "$mode" = switch ]; then

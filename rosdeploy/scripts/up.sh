@@ -13,7 +13,7 @@ guard_pid=
 if [ -n "$arm" ]; then
   rearm "${arm%% *}" start "${arm#* }" || exit 6
   # shellcheck disable=SC2046 # one image a word: images.txt is rosdeploy's, one name a line
-  if [ ! -f "$g/container" ]; then start_guard $(cat images.txt) </dev/null >/dev/null 2>&1 & guard_pid=$!; fi
+  start_guard $(cat images.txt) </dev/null >/dev/null 2>&1 & guard_pid=$!
 fi
 start() {
   case $mode in

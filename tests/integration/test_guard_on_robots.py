@@ -43,10 +43,12 @@ class Case:
     version: str        # 1.1.0 | 1.2.0-bad
     mode: str = "revert"
     as_root: bool = False   # SSH as root with Compose v1 (else the docker-group user `robot`, v2)
+    stale: bool = False     # a guard's `container` and `.starting` files left with no guard (a lost race, a reboot)
 
     @property
     def name(self) -> str:
-        return f"{self.fault}@{self.at} {self.version} ({self.mode}{', root, compose v1' if self.as_root else ''})"
+        return (f"{self.fault}@{self.at} {self.version} ({self.mode}{', root, compose v1' if self.as_root else ''}"
+                f"{', stale guard files' if self.stale else ''})")
 
     @property
     def fleet(self) -> str:
@@ -62,7 +64,8 @@ LANES = {
                Case("cut", "health", "1.2.0-bad"), Case("reboot", "health", "1.1.0"),
                Case("kill", "health", "1.2.0-bad", as_root=True)],
     "robot2": [Case("kill", "pull", "1.2.0-bad"), Case("kill", "start", "1.1.0"), Case("kill", "health", "1.2.0-bad"),
-               Case("reboot", "start", "1.2.0-bad"), Case("kill", "health", "1.1.0", "finish")],
+               Case("reboot", "start", "1.2.0-bad"), Case("kill", "health", "1.1.0", "finish"),
+               Case("kill", "health", "1.2.0-bad", stale=True)],
     "robot3": [Case("kill", "activate", "1.1.0"), Case("cut", "health", "1.1.0"), Case("reboot", "start", "1.1.0"),
                Case("reboot", "health", "1.2.0-bad"), Case("kill", "health", "1.2.0-bad", "finish")],
 }
@@ -117,6 +120,9 @@ class Lane:
             assert base.returncode == 0, base.stdout[-2000:]
         home = case.dir.rsplit("/rosdeploy/", 1)[0]
         before = shell.current(home=home)
+        if case.stale:       # what a guard that left as it was being started, or a reboot mid-start, leaves
+            shell.run(f"mkdir -p {case.dir}/.guard/.starting && echo rosdeploy-guard-demo > {case.dir}/.guard/container"
+                      f" && chown -R robot {case.dir}/.guard")
         if case.at == "pull":       # the target's images are pulled again, so the kill lands in the pull
             shell.run("docker rmi " + " ".join(i.format(v=case.version) for i in IMAGES) + " >/dev/null 2>&1 || true")
         shell.close()
@@ -310,6 +316,30 @@ def test_the_guards_revert_restores_the_previous_host_changes(fleet, tmp_path: P
     outcome = lane.settle(case, shell.current(), problems)
     assert not problems, outcome + ": " + "; ".join(problems)
     assert shell.run(host_files) == before, "the guard's revert restores the previous rules and schedule"
+
+
+def test_a_run_that_ends_at_once_leaves_no_guard_file_without_its_guard(fleet, tmp_path: Path) -> None:
+    """A rollback to a release the robot does not have fails in a fraction of a second, while
+    its guard's container is still being started: that guard leaves at once. Its `container`
+    file was written after it had left, in 4 of 6 tries, and every later run then trusted the
+    file and started no guard at all."""
+    inventory = write_inventory(fleet, tmp_path)
+    fleet_file = write_fleet(tmp_path, inventory, rollback={"guard": "revert"})
+    assert cli("--json", "apply", fleet_file, "--yes", "--limit", "robot1").returncode == 0
+    shell = RobotShell(fleet, "robot1")
+    folder = "/home/robot/rosdeploy/demo/.guard"
+    found = []
+    for _ in range(4):
+        run = cli("rollback", fleet_file, "--yes", "--limit", "robot1", "--to", "9.9.9")
+        assert run.returncode != 0 and "9.9.9" in run.stdout + run.stderr
+        end = time.monotonic() + 20
+        while shell.run("docker ps -aq --filter label=rosdeploy.guard").strip() and time.monotonic() < end:
+            time.sleep(0.5)
+        time.sleep(1.0)      # a late writer, if any, has written by now
+        found.append(shell.run(f"docker ps -aq --filter label=rosdeploy.guard; ls {folder}/container 2>/dev/null "
+                               "|| true").strip())
+    shell.close()
+    assert found == [""] * 4, f"guard containers or `container` files left: {found}"
 
 
 # ------------------------------------------------------------------ a rollback that loses its controller

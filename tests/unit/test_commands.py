@@ -106,29 +106,56 @@ def test_cut_upload_never_becomes_a_release(tmp_path: Path) -> None:
     assert not (tmp_path / "r/demo/releases/1.1.0-def").exists()
 
 
+A, B, C, D = (f"{v}-{v * 12}" for v in "abcd")   # release ids: <version>-<12 hex digits>
+
+
 def test_activate_switches_current_and_prunes_all_but_keep(tmp_path: Path) -> None:
-    for i, rel in enumerate(["a-1", "b-2", "c-3", "d-4"]):
+    for i, rel in enumerate([A, B, C, D]):
         run_local(commands.upload("~/r", "demo", rel, tarball({"images.txt": (f"img:{rel}\n", 0o644)})), tmp_path)
         out = run_local(commands.finish("~/r", "demo", rel, {"release": rel, "result": "active"}, keep=3), tmp_path)
         assert out.returncode == 0, out.stderr
         os.utime(tmp_path / f"r/demo/releases/{rel}", (1000 + i, 1000 + i))   # mtime order = activation order
     demo = tmp_path / "r/demo"
-    assert os.readlink(demo / "current") == "releases/d-4"
-    assert sorted(p.name for p in (demo / "releases").iterdir()) == ["b-2", "c-3", "d-4"]
+    assert os.readlink(demo / "current") == "releases/" + D
+    assert sorted(p.name for p in (demo / "releases").iterdir()) == [B, C, D]
     assert [json.loads(line)["release"] for line in (demo / "history.jsonl").read_text().splitlines()] == \
-        ["a-1", "b-2", "c-3", "d-4"]
+        [A, B, C, D]
 
 
 def test_rollback_target_is_not_pruned_after_reactivation(tmp_path: Path) -> None:
-    for i, rel in enumerate(["a-1", "b-2", "c-3"]):
+    for i, rel in enumerate([A, B, C]):
         run_local(commands.upload("~/r", "demo", rel, tarball({"images.txt": ("", 0o644)})), tmp_path)
         os.utime(tmp_path / f"r/demo/releases/{rel}", (1000 + i, 1000 + i))
-    run_local(commands.finish("~/r", "demo", "a-1", {"release": "a-1"}, keep=3), tmp_path)  # rolled back to a-1
-    run_local(commands.upload("~/r", "demo", "d-4", tarball({"images.txt": ("", 0o644)})), tmp_path)
-    run_local(commands.finish("~/r", "demo", "d-4", {"release": "d-4"}, keep=3), tmp_path)
+    run_local(commands.finish("~/r", "demo", A, {"release": A}, keep=3), tmp_path)  # rolled back to A
+    run_local(commands.upload("~/r", "demo", D, tarball({"images.txt": ("", 0o644)})), tmp_path)
+    run_local(commands.finish("~/r", "demo", D, {"release": D}, keep=3), tmp_path)
     kept = sorted(p.name for p in (tmp_path / "r/demo/releases").iterdir())
-    assert "a-1" in kept, "the release that ran just before must survive pruning"
-    assert kept == ["a-1", "c-3", "d-4"]
+    assert A in kept, "the release that ran just before must survive pruning"
+    assert kept == [A, C, D]
+
+
+def test_pruning_leaves_names_that_are_not_releases_and_splits_none(tmp_path: Path) -> None:
+    # an operator's `cp -a X "X copy"`: split on its space, the prune deleted X itself
+    first, second = "1.0.0-" + "a" * 12, "1.1.0-" + "b" * 12
+    for i, rel in enumerate([first, second]):
+        run_local(commands.upload("~/r", "demo", rel, tarball({"images.txt": ("", 0o644)})), tmp_path)
+        os.utime(tmp_path / f"r/demo/releases/{rel}", (1000 + i, 1000 + i))
+    copy = tmp_path / f"r/demo/releases/{first} copy"
+    copy.mkdir()
+    os.utime(copy, (10, 10))
+    out = run_local(commands.finish("~/r", "demo", first, {"release": first}, keep=2), tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert sorted(p.name for p in (tmp_path / "r/demo/releases").iterdir()) == [first, f"{first} copy", second]
+
+
+def test_a_record_after_a_line_cut_short_starts_a_line_of_its_own(tmp_path: Path) -> None:
+    history = tmp_path / "r/demo/history.jsonl"
+    history.parent.mkdir(parents=True)
+    history.write_text('{"release": "1.0.0-aaaaaaaaaaaa", "result": "act')       # a power loss mid-write
+    run_local(commands.record("~/r", "demo", {"event": "deploy", "result": "failed"}), tmp_path)
+    run_local(commands.record("~/r", "demo", {"event": "rollback", "result": "active"}), tmp_path)
+    lines = history.read_text().splitlines()
+    assert lines[0].endswith('"act') and [json.loads(x)["event"] for x in lines[1:]] == ["deploy", "rollback"]
 
 
 def test_state_reports_missing_devices(tmp_path: Path) -> None:
@@ -481,3 +508,19 @@ def test_the_health_watch_sends_its_file() -> None:
     cmd = commands.health_watch("c1", ("CMD", "true"), timeout=1.0, window=4.0, every=1.0)
     assert cmd is not None and cmd.argv[4:6] == ("-c", commands.load("health-watch.sh"))
     assert "health-watch.sh" in commands.LOADED
+
+
+def test_state_sends_the_last_history_lines_and_the_older_ones_a_rollback_needs(tmp_path: Path) -> None:
+    # only the last 50 lines went: a run of failed deploys hid the release to go back to
+    first, second, bad = "1.0.0-" + "a" * 12, "1.1.0-" + "b" * 12, "1.2.0-" + "c" * 12
+    demo = tmp_path / "r/demo"
+    for rel in (first, second):
+        (demo / "releases" / rel).mkdir(parents=True)
+    lines = [{"release": "0.9.0-" + "9" * 12, "result": "active"}, {"release": first, "result": "active"},
+             {"release": second, "result": "active"}]
+    lines += [{"release": bad, "result": "failed"}, {"release": second, "rolled_back_from": bad,
+                                                     "result": "active"}] * 40
+    (demo / "history.jsonl").write_text("".join(json.dumps(e) + "\n" for e in lines))
+    sections = commands.parse_sections(run_local(commands.state("~/r", "demo", ()), tmp_path).stdout.decode())
+    assert [json.loads(x) for x in sections["history"].splitlines()] == lines[-50:]
+    assert [json.loads(x) for x in sections["gates"].splitlines()] == [lines[1]], "kept releases' lines only"

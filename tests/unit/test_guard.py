@@ -168,9 +168,11 @@ def arm(env: dict, run: str = "R1", seconds: int = 30) -> subprocess.CompletedPr
     return sh(commands.lock("~/r", "demo", {"run": run}, guard=args), env)
 
 
-def wait_for(path: Path) -> None:
-    end = time.monotonic() + 5
-    while not path.exists() and time.monotonic() < end:
+def wait_started(tmp_path: Path, seconds: float = 5) -> None:
+    """Until the guard's `docker run` was called (its `container` file is written before it)."""
+    log = tmp_path / "docker.log"
+    end = time.monotonic() + seconds
+    while not (log.exists() and "\nrun " in "\n" + log.read_text()) and time.monotonic() < end:
         time.sleep(0.05)
 
 
@@ -183,7 +185,7 @@ def test_the_lock_arms_the_guard_and_starts_its_container(tmp_path: Path) -> Non
     assert (state.run, state.phase, state.target) == ("R1", "prepare", "1.1.0-b")
     assert abs(state.deadline - (time.time() + 30)) < 5
     assert (g / "guard.sh").read_text() == "GUARD\n" and (g / "probe.json").read_text() == "{}\n"
-    wait_for(g / "container")
+    wait_started(tmp_path)
     run = next(c for c in (tmp_path / "docker.log").read_text().splitlines() if c.startswith("run "))
     for part in ("--restart always", "--network none", "-v /:/host", "--entrypoint chroot img:1",
                  f"/host /bin/sh {g}/guard.sh {g} rosdeploy-guard-demo"):
@@ -195,7 +197,7 @@ def test_rearm_disarm_and_a_guard_that_took_over(tmp_path: Path) -> None:
     env = fake_docker(tmp_path)
     arm(env)
     g = tmp_path / "r/demo/.guard"
-    wait_for(g / "container")
+    wait_started(tmp_path)
     out = sh(commands.record("~/r", "demo", {"event": "x"}, commands.rearm_arg("R1", 90)), env)
     assert out.returncode == 0, out.stderr
     assert guard.parse_guard((g / "state").read_text()).phase == "start"
@@ -345,3 +347,30 @@ def test_the_first_up_waits_for_the_lock_s_guard_start_instead_of_starting_a_sec
     assert len(runs) == 1 and not [c for c in (tmp_path / "docker.log").read_text().splitlines()
                                    if c.startswith("rm ")]
     assert (tmp_path / "r/demo/.guard/container").exists() and time.monotonic() - began < 5
+
+
+def test_a_guard_file_whose_container_is_gone_is_replaced_and_a_start_left_mid_way_bars_nothing(
+        tmp_path: Path) -> None:
+    # a `container` file that outlived its guard made every later run start none
+    env = fake_docker(tmp_path)
+    (tmp_path / "bin" / "docker").write_text('#!/bin/sh\necho "$*" >> "$DOCKER_LOG"\n'
+                                             '[ "$1" != inspect ] || exit 1\n')     # no such container
+    g = tmp_path / "r/demo/.guard"
+    (g / ".starting").mkdir(parents=True)            # a start cut by a restart of the robot
+    (g / "container").write_text("rosdeploy-guard-demo\n")
+    assert arm(env).returncode == 0
+    wait_started(tmp_path, 15)        # the left `.starting` is taken over after 10 s
+    calls = (tmp_path / "docker.log").read_text().splitlines()
+    assert any(c.startswith("inspect rosdeploy-guard-demo") for c in calls)
+    assert any(c.startswith("run ") for c in calls), calls
+    assert (g / "container").exists() and not (g / ".starting").exists()
+
+
+def test_status_says_when_no_guard_container_runs_for_a_deploy_cut_off() -> None:
+    # it said "guard reverts to … in 0 s" while no guard existed to do it
+    cut = replace(state(running="1.2.0-bad-c", guard_text=ARMED, lock=OWNER), guard_container="none")
+    word, reason = status_word(cut, {}, lock_alive=False)
+    assert word == "INTERRUPTED" and "NO GUARD RUNS on the robot (its container: none)" in reason
+    assert "guard reverts" not in reason
+    running = replace(cut, guard_container="running")
+    assert status_word(running, {}, lock_alive=False)[1].endswith("guard reverts to 1.0.0-a in 42 s")

@@ -10,8 +10,13 @@ from rosdeploy.robot import (Container, parse_state, passed_gate, previous_relea
                             release_services, unhealthy_services)
 from rosdeploy.rollout import allowed_failures, plan_waves, wave_sizes
 
+# Release ids as rosdeploy makes them (version-digest12): the state ignores other names in releases/.
+A, B, BAD = "1.0.0-aaaaaaaaaaaa", "1.1.0-bbbbbbbbbbbb", "1.2.0-bad000000000"
+OLD, NEW = "1.0.0-000000000001", "1.0.0-000000000002"
+R1, R2, R3 = "1.0.0-a00000000001", "1.0.0-b00000000002", "1.0.0-c00000000003"
 
-def state_text(current="1.1.0-bbb", history=(), releases=("1.0.0-aaa", "1.1.0-bbb"), containers=()) -> str:
+
+def state_text(current=B, history=(), releases=(A, B), containers=()) -> str:
     parts = {
         "home": "/home/robot", "dir": "/home/robot/rosdeploy/demo",
         "current": f"releases/{current}" if current else "",
@@ -27,11 +32,11 @@ def state_text(current="1.1.0-bbb", history=(), releases=("1.0.0-aaa", "1.1.0-bb
 
 def test_parse_state_reads_every_section() -> None:
     c = {"name": "/demo-driver-1", "service": "driver", "image": "r/demo/driver:1.1.0", "status": "running",
-         "health": "healthy", "restarts": 0, "workdir": "/home/robot/rosdeploy/demo/releases/1.1.0-bbb"}
+         "health": "healthy", "restarts": 0, "workdir": f"/home/robot/rosdeploy/demo/releases/{B}"}
     st = parse_state(state_text(containers=[c]))
-    assert st.current == "1.1.0-bbb" and st.flavor == "v2" and st.docker_ok
+    assert st.current == B and st.flavor == "v2" and st.docker_ok
     assert st.free_mb == 51234 and st.missing_devices == ("/dev/robot/lidar",)
-    assert st.containers[0].name == "demo-driver-1" and st.containers[0].release == "1.1.0-bbb"
+    assert st.containers[0].name == "demo-driver-1" and st.containers[0].release == B
     assert st.manifest["digest"] == "bbb"
     assert st.host_files is None, "no hostfiles section: not looked at, so never judged as drift"
 
@@ -74,32 +79,32 @@ def active(release: str) -> dict:
 
 
 def test_previous_release_is_the_one_active_before_current() -> None:
-    st = parse_state(state_text(history=[active("1.0.0-aaa"), active("1.1.0-bbb")]))
-    assert previous_release(st) == "1.0.0-aaa"
+    st = parse_state(state_text(history=[active(A), active(B)]))
+    assert previous_release(st) == A
 
 
 def test_previous_release_skips_releases_already_rolled_back_from() -> None:
-    history = [active("a-1"), active("b-2"), {"release": "a-1", "result": "active", "rolled_back_from": "b-2"},
-               active("c-3")]
-    st = parse_state(state_text(current="c-3", history=history, releases=("a-1", "b-2", "c-3")))
-    assert previous_release(st) == "a-1", "b-2 was rolled back from: a second rollback must not return to it"
+    history = [active(R1), active(R2), {"release": R1, "result": "active", "rolled_back_from": R2},
+               active(R3)]
+    st = parse_state(state_text(current=R3, history=history, releases=(R1, R2, R3)))
+    assert previous_release(st) == R1, "R2 was rolled back from: a second rollback must not return to it"
 
 
 def test_previous_release_needs_the_release_on_disk() -> None:
-    st = parse_state(state_text(history=[active("0.9.0-zzz"), active("1.1.0-bbb")], releases=("1.1.0-bbb",)))
+    st = parse_state(state_text(history=[active("0.9.0-zzz"), active(B)], releases=(B,)))
     assert previous_release(st) is None
 
 
 def test_only_a_release_activated_before_passed_the_gate() -> None:
-    failed = {"release": "1.2.0-bad", "result": "failed"}
-    st = parse_state(state_text(history=[active("1.0.0-aaa"), failed], releases=("1.0.0-aaa", "1.2.0-bad")))
-    assert passed_gate(st, "1.0.0-aaa") and not passed_gate(st, "1.2.0-bad")
+    failed = {"release": BAD, "result": "failed"}
+    st = parse_state(state_text(history=[active(A), failed], releases=(A, BAD)))
+    assert passed_gate(st, A) and not passed_gate(st, BAD)
 
 
 def test_release_for_version_prefers_the_last_activated() -> None:
-    history = [active("1.0.0-old"), active("1.0.0-new"), active("1.1.0-bbb")]
-    st = parse_state(state_text(history=history, releases=("1.0.0-new", "1.0.0-old", "1.1.0-bbb")))
-    assert release_for_version(st, "1.0.0") == "1.0.0-new"
+    history = [active(OLD), active(NEW), active(B)]
+    st = parse_state(state_text(history=history, releases=(NEW, OLD, B)))
+    assert release_for_version(st, "1.0.0") == NEW
     assert release_for_version(st, "2.0.0") is None
 
 
@@ -328,10 +333,10 @@ def test_a_held_lock_is_reported_as_who_holds_it_not_as_its_json(monkeypatch) ->
 
 
 @pytest.mark.parametrize("history,flavor", [
-    ([{**active("1.1.0-bbb"), "compose": "v1"}, {**active("1.0.0-aaa"), "compose": "v1"},
-      {**active("1.1.0-bbb"), "compose": "v2"}], "v2"),           # the last start of the current release
-    ([{**active("1.0.0-aaa"), "compose": "v2"}, active("1.1.0-bbb")], None),   # not recorded for current
-    ([{**active("1.1.0-bbb"), "compose": "v3"}], None),                      # not a flavour rosdeploy knows
+    ([{**active(B), "compose": "v1"}, {**active(A), "compose": "v1"},
+      {**active(B), "compose": "v2"}], "v2"),           # the last start of the current release
+    ([{**active(A), "compose": "v2"}, active(B)], None),   # not recorded for current
+    ([{**active(B), "compose": "v3"}], None),                      # not a flavour rosdeploy knows
 ])
 def test_recorded_flavor_is_how_the_current_release_was_last_started(history: list, flavor: str | None) -> None:
     assert parse_state(state_text(history=history)).recorded_flavor == flavor
@@ -350,7 +355,7 @@ class Robot:
         out = ""
         if label == "lock+state":
             out = "locked\n" + state_text(history=self.history).replace(
-                "\n@@end", '\n@@manifest 1.0.0-aaa\n{"services": ["driver"]}\n@@end')
+                "\n@@end", f'\n@@manifest {A}\n{{"services": ["driver"]}}\n@@end')
         elif label == "state":
             out = state_text(history=self.history, containers=self.containers)
         elif label == "activate":
@@ -385,12 +390,12 @@ def _rolled_back(robot: Robot, monkeypatch, compose: str = "auto") -> tuple[obje
 
 
 def test_a_rollback_starts_the_switch_after_one_round_trip(monkeypatch) -> None:
-    robot = Robot([{**active("1.0.0-aaa"), "compose": "v2"}, {**active("1.1.0-bbb"), "compose": "v2"}])
+    robot = Robot([{**active(A), "compose": "v2"}, {**active(B), "compose": "v2"}])
     result, started = _rolled_back(robot, monkeypatch)
     assert result.outcome == "switched"
     assert robot.calls[:2] == ["lock+state", "up"]         # no state, lock or manifest of their own
     # the kept release's own services (its manifest), together: it passed the gate here before
-    assert started == {"release": "1.0.0-aaa", "flavor": "v2", "together": True, "services": ("driver",)}
+    assert started == {"release": A, "flavor": "v2", "together": True, "services": ("driver",)}
     assert [s.name for s in result.steps] == ["lock+state", "activate"]
     assert robot.history[-1]["compose"] == "v2"       # so the next rollback needs no more either
 
@@ -403,6 +408,6 @@ def test_a_rollback_without_the_flavour_in_history_reads_it_from_the_robot(compo
                                                                              monkeypatch) -> None:
     made_by_v1 = ({"name": "/demo-driver-1", "service": "driver", "image": "i", "status": "running",
                    "ps_status": "Up 1 minute", "compose": "1.29.2"},)
-    robot = Robot([active("1.0.0-aaa"), active("1.1.0-bbb")], containers=made_by_v1)   # an older rosdeploy's
+    robot = Robot([active(A), active(B)], containers=made_by_v1)   # an older rosdeploy's
     result, started = _rolled_back(robot, monkeypatch, compose)
     assert result.outcome == "switched" and robot.calls[:len(calls)] == calls and started["flavor"] == flavor

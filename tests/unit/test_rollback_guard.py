@@ -16,6 +16,8 @@ from rosdeploy.model import FleetSpec, HealthPolicy, Host, RollbackPolicy, Servi
 from rosdeploy.robot import parse_state
 from rosdeploy.views import status_word
 
+A, B = "1.0.0-aaaaaaaaaaaa", "1.1.0-bbbbbbbbbbbb"    # release ids as rosdeploy makes them (version-digest12)
+
 # `ps` finds one container; `inspect` says it runs, healthy, from $WD (the release dir it was made in)
 FAKE_DOCKER = """#!/bin/sh
 echo "$*" >> "$DOCKER_LOG"
@@ -27,15 +29,15 @@ esac
 
 
 def robot(tmp_path: Path, running: str) -> dict:
-    """A robot dir with 1.0.0-a (activated before) and 1.1.0-b (current), running `running`."""
+    """A robot dir with A (activated before) and B (current), running `running`."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     (bin_dir / "docker").write_text(FAKE_DOCKER)
     (bin_dir / "docker").chmod(0o755)
     project = tmp_path / "r/demo"
-    for release in ("1.0.0-a", "1.1.0-b"):
+    for release in (A, B):
         (project / "releases" / release).mkdir(parents=True)
-    os.symlink("releases/1.1.0-b", project / "current")
+    os.symlink(f"releases/{B}", project / "current")
     return {"HOME": str(tmp_path), "PATH": f"{bin_dir}:{os.environ['PATH']}",
             "DOCKER_LOG": str(tmp_path / "docker.log"), "WD": str(project / "releases" / running)}
 
@@ -52,7 +54,7 @@ def robot_run(command_timeout: float = 20, gate: float = 0, margin: float = 8) -
     return deploy.RobotRun(ctx, Host(name="r1", groups=("all",), vars={}, address="h"))
 
 
-HISTORY = ('{"release": "1.0.0-a", "result": "active"}\n{"release": "1.1.0-b", "result": "active"}\n')
+HISTORY = "".join(json.dumps({"release": r, "result": "active"}) + "\n" for r in (A, B))
 
 
 def armed_and_switching(tmp_path: Path, env: dict, run: deploy.RobotRun) -> Path:
@@ -61,8 +63,8 @@ def armed_and_switching(tmp_path: Path, env: dict, run: deploy.RobotRun) -> Path
     locked = sh(commands.locked_state("~/r", "demo", {"run": "run-1"}, guard=run.rollback_arm()), env)
     assert locked.returncode == 0 and locked.stdout.startswith("locked"), locked.stderr
     state = replace(parse_state(locked.stdout), history=tuple(json.loads(line) for line in HISTORY.splitlines()))
-    run.rollback_to(state, "1.0.0-a", "v2", ("driver",))
-    up = sh(commands.up("~/r", "demo", "1.0.0-a", "v2", together=True, rearm=run.rearm("start")), env)
+    run.rollback_to(state, A, "v2", ("driver",))
+    up = sh(commands.up("~/r", "demo", A, "v2", together=True, rearm=run.rearm("start")), env)
     assert up.returncode == 0, up.stderr
     return tmp_path / "r/demo/.guard"
 
@@ -83,12 +85,12 @@ def test_the_deadlines_prepare_then_the_switch_s_own() -> None:
     assert (state.run, state.mode, state.phase, state.target) == ("run-1", "rollback", "prepare", "")
     assert int(args[1]) == 20 + 8                  # before the switch: a command's timeout + margin
     assert args[2:5] == (guard.GUARD_SCRIPT, commands.UP_SCRIPT, commands.FINISH_SCRIPT)
-    run.rollback_to(parse_state("\n@@current\nreleases/1.1.0-b\n@@end\n"), "1.0.0-a", "v1", None)
+    run.rollback_to(parse_state(f"\n@@current\nreleases/{B}\n@@end\n"), A, "v1", None)
     first, lines = run.rearm("start").split("\n", 1)
     assert first == "run-1 38"                     # max(command_timeout, health.timeout) + margin
     switched = guard.parse_guard(args[0] + lines)
-    assert (switched.target, switched.previous, switched.gated) == ("1.0.0-a", "1.1.0-b", False)
-    assert "reverts to 1.1.0-b in ~38 s" in run.guard_note()   # never activated here: no target to finish on
+    assert (switched.target, switched.previous, switched.gated) == (A, B, False)
+    assert f"reverts to {B} in ~38 s" in run.guard_note()   # never activated here: no target to finish on
     assert guard.rollback_deadline(600, 90, 30) == 630 and guard.rollback_deadline(20, 90, 30) == 120
     off = robot_run()
     off.spec = replace(off.spec, rollback=RollbackPolicy(guard="off"))
@@ -96,42 +98,42 @@ def test_the_deadlines_prepare_then_the_switch_s_own() -> None:
 
 
 def test_status_says_an_interrupted_rollback_and_what_its_guard_does() -> None:
-    text = "run=R\nby=ana@laptop\nmode=rollback\nphase=start\ntarget=1.0.0-a\nprevious=1.1.0-b\ngated=yes\n" \
+    text = f"run=R\nby=ana@laptop\nmode=rollback\nphase=start\ntarget={A}\nprevious={B}\ngated=yes\n" \
            "deadline=142\nboot=b-1\n"
-    st = parse_state("\n@@current\nreleases/1.1.0-b\n@@guard\n" + text + "@@clock\n100\n@@boot\nb-1\n@@end\n")
+    st = parse_state(f"\n@@current\nreleases/{B}\n@@guard\n" + text + "@@clock\n100\n@@boot\nb-1\n@@end\n")
     word, reason = status_word(st, {}, lock_alive=False)
-    assert word == "INTERRUPTED" and reason.endswith("guard finishes the rollback to 1.0.0-a in 42 s")
+    assert word == "INTERRUPTED" and reason.endswith(f"guard finishes the rollback to {A} in 42 s")
     rebooted = replace(st, boot="b-2")
     assert "robot restarted mid-rollback" in status_word(rebooted, {}, None)[1]
 
 
 def test_the_switch_re_arms_the_lock_s_guard_with_its_target(tmp_path: Path) -> None:
-    env = robot(tmp_path, running="1.0.0-a")
+    env = robot(tmp_path, running=A)
     g = armed_and_switching(tmp_path, env, robot_run())
     state = guard.parse_guard((g / "state").read_text())
     assert (state.mode, state.phase, state.target, state.previous, state.gated) == \
-           ("rollback", "start", "1.0.0-a", "1.1.0-b", True)
+           ("rollback", "start", A, B, True)
     assert abs(state.deadline - (time.time() + 28)) < 5
     assert (g / "up.sh").read_text() == commands.UP_SCRIPT + "\n"
 
 
 def test_a_lost_controller_s_rollback_is_completed_without_restarting_what_already_runs(tmp_path: Path) -> None:
-    env = robot(tmp_path, running="1.0.0-a")
+    env = robot(tmp_path, running=A)
     g = armed_and_switching(tmp_path, env, robot_run())
     (tmp_path / "docker.log").write_text("")
     entry = act_now(g, env)
     assert (entry["event"], entry["release"], entry["rolled_back_from"], entry["result"], entry["run"]) == \
-           ("guard-finished-rollback", "1.0.0-a", "1.1.0-b", "active", "run-1")
+           ("guard-finished-rollback", A, B, "active", "run-1")
     assert entry["reason"] == "controller lost"
     project = tmp_path / "r/demo"
-    assert os.readlink(project / "current") == "releases/1.0.0-a"
+    assert os.readlink(project / "current") == f"releases/{A}"
     assert not (project / ".lock").exists() and not (g / "state").exists() and not (g / "acting").exists()
     log = (tmp_path / "docker.log").read_text()
     assert "compose -p" not in log and "stop " not in log and "rm -f rosdeploy-guard-demo" in log
 
 
 def test_a_half_done_switch_is_started_again_the_brake_s_way(tmp_path: Path) -> None:
-    env = robot(tmp_path, running="1.1.0-b")      # the old release's container still there
+    env = robot(tmp_path, running=B)      # the old release's container still there
     g = armed_and_switching(tmp_path, env, robot_run())
     (tmp_path / "docker.log").write_text("")
     entry = act_now(g, env)
@@ -139,23 +141,23 @@ def test_a_half_done_switch_is_started_again_the_brake_s_way(tmp_path: Path) -> 
     assert "compose -p demo -f compose.yml up --no-start --remove-orphans" in log and "start c1" in log
     # the fake still shows the old release: not healthy within the gate, switched all the same (as the brake does)
     assert (entry["event"], entry["result"]) == ("guard-finished-rollback", "unhealthy")
-    assert os.readlink(tmp_path / "r/demo/current") == "releases/1.0.0-a"
+    assert os.readlink(tmp_path / "r/demo/current") == f"releases/{A}"
 
 
 def test_a_rollback_lost_before_its_switch_only_releases_the_lock(tmp_path: Path) -> None:
-    env = robot(tmp_path, running="1.1.0-b")
+    env = robot(tmp_path, running=B)
     locked = sh(commands.locked_state("~/r", "demo", {"run": "run-1"}, guard=robot_run().rollback_arm()), env)
     assert locked.returncode == 0
     g = tmp_path / "r/demo/.guard"
     assert "@@guard\nrun=run-1\n" in locked.stdout          # the state read under the lock shows it armed
     entry = act_now(g, env)
-    assert (entry["event"], entry["release"], entry["result"]) == ("guard-rollback", "1.1.0-b", "unchanged")
+    assert (entry["event"], entry["release"], entry["result"]) == ("guard-rollback", B, "unchanged")
     assert "before the rollback switched anything" in entry["reason"]
-    assert os.readlink(tmp_path / "r/demo/current") == "releases/1.1.0-b" and not (tmp_path / "r/demo/.lock").exists()
+    assert os.readlink(tmp_path / "r/demo/current") == f"releases/{B}" and not (tmp_path / "r/demo/.lock").exists()
 
 
 def test_a_guard_that_is_acting_keeps_a_rollback_out(tmp_path: Path) -> None:
-    env = robot(tmp_path, running="1.1.0-b")
+    env = robot(tmp_path, running=B)
     g = tmp_path / "r/demo/.guard"
     g.mkdir()
     (g / "acting").write_text("run=R0\n")
@@ -168,7 +170,7 @@ def test_a_guard_that_is_acting_keeps_a_rollback_out(tmp_path: Path) -> None:
 def test_a_guard_that_is_acting_keeps_a_deploy_out_with_one_answer(tmp_path: Path) -> None:
     """The deploy's lock gives the lock back when its guard cannot be armed: its answer is only
     `held ...` (it used to print `locked` first, and the holder read as that text)."""
-    env = robot(tmp_path, running="1.1.0-b")
+    env = robot(tmp_path, running=B)
     g = tmp_path / "r/demo/.guard"
     g.mkdir()
     (g / "acting").write_text("run=R0\n")
@@ -200,7 +202,7 @@ def test_the_controller_s_activation_disarms_the_rollback_s_guard_and_a_lost_run
     run = robot_run()
     run.t = transport = Recorder()
     run.rollback_arm()
-    run.activate("1.0.0-a", {"event": "rollback"})
+    run.activate(A, {"event": "rollback"})
     assert transport.calls[-1].argv[-1] == "run-1"      # finish.sh disarms this run's guard (strict)
     lost = robot_run()
     lost.t = transport = Recorder()
