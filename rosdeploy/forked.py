@@ -24,6 +24,7 @@ R = TypeVar("R")
 
 MIN_ITEMS = 100       # a fork and the pickling cost ~10 ms; 100 robots render in ~50 ms
 MAX_WORKERS = 4       # this process reads every child's results in turn: more children, less gain
+PR_SET_PDEATHSIG = 1   # linux/prctl.h: the signal a child gets when its parent dies
 PARENT_SHARE = 1.25  # the child also forks, faults in pages and pickles (1.0-2.0: the same within the noise)
 
 
@@ -62,6 +63,33 @@ def mapped(func: Callable[[T], R], items: Sequence[T]) -> Generator[R, None, Non
             child.stop()
 
 
+def _die_with(parent: int) -> None:
+    """End this child when its parent ends: a parent killed outright (SIGKILL, the OOM killer)
+    cleans nothing up, and its children went on writing robots' folders into a staging folder
+    no one would remove. On Linux the kernel sends SIGKILL; elsewhere _orphan checks per item."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):    # no prctl: _orphan's check is what is left
+            pass
+    _orphan(parent)
+
+
+def _computed(func: Callable[[T], R], part: Sequence[T], parent: int) -> list[R]:
+    results = []
+    for item in part:
+        _orphan(parent)
+        results.append(func(item))
+    return results
+
+
+def _orphan(parent: int) -> None:
+    """Exit at once when `parent` is gone (this process was handed to another)."""
+    if os.getppid() != parent:
+        os._exit(1)
+
+
 def _slices(items: Sequence[T], count: int) -> list[Sequence[T]]:
     """`count` contiguous slices, the first PARENT_SHARE times the others' size: a child also
     forks, faults in the pages it writes, and pickles, which takes it longer than this process
@@ -77,13 +105,17 @@ class _Child:
     def __init__(self, func: Callable[[T], R], part: Sequence[T]) -> None:
         self.func, self.part = func, part
         read_fd, write_fd = os.pipe()
+        parent = os.getpid()
         self.pid: int | None = os.fork()
         if self.pid == 0:                 # the child: never returns into the caller's code
             code = 1
             try:
                 os.close(read_fd)
-                signal.signal(signal.SIGINT, signal.SIG_DFL)     # Ctrl-C ends it; the parent says so
-                data = pickle.dumps([func(item) for item in part], protocol=pickle.HIGHEST_PROTOCOL)
+                for name in ("SIGINT", "SIGTERM", "SIGHUP"):    # they end it; the parent says so
+                    if hasattr(signal, name):
+                        signal.signal(getattr(signal, name), signal.SIG_DFL)
+                _die_with(parent)
+                data = pickle.dumps(_computed(func, part, parent), protocol=pickle.HIGHEST_PROTOCOL)
                 with os.fdopen(write_fd, "wb") as pipe:
                     pipe.write(data)
                 code = 0

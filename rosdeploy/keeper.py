@@ -56,14 +56,23 @@ class KeeperUnavailable(Exception):
 # --------------------------------------------------------------- the place
 
 def control_dir() -> Path:
-    """Where the socket lives: $ROSDEPLOY_CONTROL_DIR, else $XDG_RUNTIME_DIR/rosdeploy, else ~/.cache/rosdeploy/cp."""
+    """Where the socket lives: $ROSDEPLOY_CONTROL_DIR, else $XDG_RUNTIME_DIR/rosdeploy, else ~/.cache/rosdeploy/cp.
+    A relative one is refused (KeeperUnavailable): it would be made under whatever folder the
+    command ran in, and a keeper started in one folder is never found from another."""
     chosen = os.environ.get("ROSDEPLOY_CONTROL_DIR")
     if chosen:
-        return Path(chosen)
+        return _absolute(Path(chosen), "ROSDEPLOY_CONTROL_DIR")
     runtime = os.environ.get("XDG_RUNTIME_DIR")
-    if runtime and os.path.isdir(runtime):
+    if runtime and os.path.isabs(runtime) and os.path.isdir(runtime):   # the XDG spec: ignore a relative one
         return Path(runtime) / "rosdeploy"
-    return Path.home() / ".cache" / "rosdeploy" / "cp"
+    return _absolute(Path.home() / ".cache" / "rosdeploy" / "cp", "HOME")
+
+
+def _absolute(path: Path, source: str) -> Path:
+    if not path.is_absolute():
+        raise KeeperUnavailable(f"its folder {path} is a relative path (from ${source}): set {source} to an "
+                                "absolute path")
+    return path
 
 
 def private_dir(path: Path) -> Path:

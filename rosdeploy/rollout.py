@@ -8,6 +8,7 @@ accident. Every robot's outcome is kept in the FleetResult.
 from __future__ import annotations
 
 import math
+import queue
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -47,6 +48,40 @@ def _wait(future: Future[T], on_interrupt: Callable[[], None]) -> T:
             return future.result()
         except KeyboardInterrupt:
             on_interrupt()
+
+
+def gather(hosts: Sequence[Host], work: Callable[[Host], T], forks: int) -> list[T]:
+    """Read-only work (status, plan, history) for every host, at most `forks` at once, results in
+    host order. Ctrl-C (or SIGTERM) stops the waiting at once: nothing is being changed on a robot,
+    so a robot's thread still waiting for an answer is a daemon, left to end with the process,
+    and robots not yet started are not started."""
+    if not hosts:
+        return []
+    todo: queue.SimpleQueue[int] = queue.SimpleQueue()
+    for i in range(len(hosts)):
+        todo.put(i)
+    futures: list[Future[T]] = [Future() for _ in hosts]
+    stop = threading.Event()
+
+    def worker() -> None:
+        while not stop.is_set():
+            try:
+                i = todo.get_nowait()
+            except queue.Empty:
+                return
+            futures[i].set_running_or_notify_cancel()
+            try:
+                futures[i].set_result(work(hosts[i]))
+            except BaseException as exc:    # noqa: BLE001 - handed to the waiting thread, as a pool does
+                futures[i].set_exception(exc)
+
+    for n in range(max(1, min(forks, len(hosts)))):
+        threading.Thread(target=worker, name=f"robot-{n}", daemon=True).start()
+    try:
+        return [f.result() for f in futures]
+    except KeyboardInterrupt:
+        stop.set()
+        raise
 
 
 def wave_sizes(total: int, waves: Sequence[int | str]) -> list[int]:
@@ -264,5 +299,8 @@ def _fleet_rollback(ctx: RunContext, hosts: Sequence[Host], done: list[HostResul
 def rollback_fleet(ctx: RunContext, hosts: Sequence[Host], forks: int, to_version: str | None = None) -> FleetResult:
     """The emergency brake: every targeted robot at once, no pull."""
     started = time.monotonic()
-    results = parallel(hosts, lambda h: rollback_host(ctx, h, to_version=to_version), forks)
-    return FleetResult("rollback", tuple(results), seconds=time.monotonic() - started, run_id=ctx.run_id)
+    # Ctrl-C or SIGTERM: robots mid-switch finish it (a brake is not left half-applied), robots
+    # not yet started are skipped, and the run says it was interrupted
+    results = parallel(hosts, lambda h: rollback_host(ctx, h, to_version=to_version), forks, ctx.cancel.set)
+    return FleetResult("rollback", tuple(results), seconds=time.monotonic() - started, run_id=ctx.run_id,
+                       interrupted=ctx.cancel.is_set())

@@ -8,9 +8,14 @@ imports no SSH or crypto module: the handlers import what their command needs, s
 from __future__ import annotations
 
 import argparse
+import errno
+import os
+import signal
 import sys
 import traceback
-from typing import Any, Sequence
+from contextlib import contextmanager
+from types import FrameType
+from typing import Any, Iterator, Sequence, TextIO
 
 from rosdeploy import __version__
 from rosdeploy.cli.common import EXIT_CODES, Parser, UsageError, add_command
@@ -62,7 +67,13 @@ def cmd_version(args: argparse.Namespace, out: Output) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    with _stopped_by_signals(), _guarded_streams() as streams:
+        code = _main(list(sys.argv[1:] if argv is None else argv))
+    _say_lost_output(streams)
+    return code
+
+
+def _main(argv: list[str]) -> int:
     try:
         args = build_parser().parse_args(argv)
     except VersionAsked:
@@ -73,18 +84,116 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not out.as_json:
             out.note(exc.usage.rstrip())
         return _fail(out, exc)
+    except KeyboardInterrupt as exc:    # SIGTERM while the parser was built: nothing was done
+        return _fail(Output(as_json=_given(argv, "--json") is not None), exc)
     out = Output(as_json=args.json, color=args.color)
     try:
         return int(args.func(args, out) or 0)
-    except BrokenPipeError:   # `rosdeploy plan ... | head`: the reader left, nothing is wrong
-        sys.stderr.close()
-        return EXIT_OK
     except Exception as exc:
         if args.debug and not isinstance(exc, RosdeployError):
             traceback.print_exc()
         return _fail(out, exc, args.debug)
     except KeyboardInterrupt as exc:
         return _fail(out, exc)
+
+
+class Stopped(KeyboardInterrupt):
+    """SIGTERM or SIGHUP (CI cancelling a job, `timeout`, a closed terminal), raised in the main
+    thread as Ctrl-C's KeyboardInterrupt is, so both take one path: apply brings its running
+    robots to a safe point and releases their locks, a read-only command stops waiting."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signal_name = signal.Signals(signum).name
+
+
+def _stop(signum: int, frame: FrameType | None) -> None:
+    raise Stopped(signum)
+
+
+@contextmanager
+def _stopped_by_signals() -> Iterator[None]:
+    """SIGTERM and SIGHUP handled like Ctrl-C while main() runs (their default ends the process
+    on the spot: no run record, locks left on the robots, no --json document)."""
+    wanted = [getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)]
+    try:
+        before = {signum: signal.signal(signum, _stop) for signum in wanted}
+    except ValueError:     # not the main thread (main() called from a test's thread): no handlers
+        before = {}
+    try:
+        yield
+    finally:
+        for signum, handler in before.items():
+            signal.signal(signum, handler)
+
+
+class GuardedStream:
+    """stdout or stderr for one run: a write that fails (the reader of a pipe left, a full disk,
+    a closed stream) stops the writing on that stream, never the command. `apply F | head` must
+    still finish its robots, save its records and exit with its own code."""
+
+    def __init__(self, stream: TextIO | None) -> None:
+        self.stream = stream
+        self.lost: OSError | None = None
+
+    def write(self, text: str) -> int:
+        if self.stream is not None and self.lost is None:
+            try:
+                return self.stream.write(text)
+            except OSError as exc:
+                self._give_up(exc)
+        return len(text)
+
+    def flush(self) -> None:
+        if self.stream is not None and self.lost is None:
+            try:
+                self.stream.flush()
+            except OSError as exc:
+                self._give_up(exc)
+
+    def isatty(self) -> bool:
+        try:
+            return self.stream is not None and self.stream.isatty()
+        except (OSError, ValueError):
+            return False
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+    def _give_up(self, exc: OSError) -> None:
+        """Keep the failure, and point the descriptor at /dev/null: what is still buffered is
+        flushed once more at exit, which would otherwise print Python's own complaint."""
+        self.lost = exc
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, self.stream.fileno())    # type: ignore[union-attr]
+            os.close(null)
+        except (OSError, ValueError, AttributeError):   # no descriptor (a test's capture): nothing to flush
+            pass
+
+
+@contextmanager
+def _guarded_streams() -> Iterator[tuple[GuardedStream, GuardedStream]]:
+    streams = GuardedStream(sys.stdout), GuardedStream(sys.stderr)
+    sys.stdout, sys.stderr = streams
+    try:
+        yield streams
+    finally:
+        sys.stdout, sys.stderr = streams[0].stream, streams[1].stream
+
+
+def _say_lost_output(streams: tuple[GuardedStream, GuardedStream]) -> None:
+    """Output that could not be written is said once on stderr, when it can be, unless the
+    reader of a pipe simply left (`| head`): that is the reader's choice, not a failure."""
+    out, err = streams
+    if out.lost is None or out.lost.errno == errno.EPIPE or err.lost is not None or err.stream is None:
+        return
+    try:
+        err.stream.write(f"rosdeploy: standard output could not be written ({out.lost.strerror or out.lost}); "
+                         "the command ran to its end, its exit code says how it went\n")
+        err.stream.flush()
+    except OSError:
+        pass
 
 
 def _fail(out: Output, exc: BaseException, debug: bool = False) -> int:
@@ -113,6 +222,8 @@ def _classify(exc: BaseException) -> tuple[int, str, tuple[Problem, ...]]:
 
 
 def _message(exc: BaseException, debug: bool = False) -> str:
+    if isinstance(exc, Stopped):
+        return f"interrupted by {exc.signal_name}"
     if isinstance(exc, KeyboardInterrupt):
         return "interrupted"
     if isinstance(exc, UsageError):

@@ -24,10 +24,10 @@ EXIT_CODES: dict[int, str] = {
     EXIT_PARTIAL: "some robots failed, were rolled back, locked or unreachable (within max_fail)",
     EXIT_ABORTED: "a wave exceeded max_fail: the rollout stopped, later waves skipped",
     EXIT_DECLINED: "declined at the confirmation prompt: nothing was done",
-    EXIT_INTERRUPTED: "interrupted (Ctrl-C)",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C, SIGTERM or SIGHUP)",
 }
-# What apply and rollback do with Ctrl-C before they exit
-INTERRUPTED_RUN = "interrupted (Ctrl-C): robots mid-deploy finished or rolled back, locks released"
+# What apply and rollback do with Ctrl-C (or SIGTERM, SIGHUP) before they exit
+INTERRUPTED_RUN = "interrupted (Ctrl-C, SIGTERM or SIGHUP): robots mid-deploy finished or rolled back, locks released"
 # Any command can be given a wrong word, hit a bug, or be interrupted
 ALWAYS = (EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED)
 
@@ -128,7 +128,8 @@ def fail_limit(text: str) -> int | str:
 def _wave_word(word: str, least: int, hint: str) -> int | str:
     from rosdeploy.fleet import wave_target
     try:
-        return wave_target(int(word) if re.fullmatch(r"[0-9]{1,9}", word) else word, least)
+        # ASCII digits, any count the fleet file takes (int() alone would take "1_0" and "٥")
+        return wave_target(int(word) if re.fullmatch(r"[0-9]+", word) else word, least)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{shown(word)}: {hint}") from None
 
@@ -155,10 +156,8 @@ def group_prefix(text: str) -> str:
 def positive_int(text: str) -> int:
     """A count from 1 up to the fleet file's bound for counts (2**31 - 1: more is a typo)."""
     from rosdeploy.fleet import MAX_COUNT
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
+    # ASCII digits only, as in the fleet file: int() alone takes "1_0", " 5 " and "٥"
+    value = int(text) if re.fullmatch(r"[0-9]{1,12}", text) else 0
     if not 1 <= value <= MAX_COUNT:
         raise argparse.ArgumentTypeError(f"{shown(text)} is not a whole number from 1 to {MAX_COUNT}")
     return value

@@ -234,14 +234,40 @@ def _apply(args: argparse.Namespace, out: Output, early: EarlyConnections) -> in
     try:
         with report.progress_view(out, [h.name for h in hosts]) as view:
             ctx = early.use(replace(context(args, spec, view.progress), images=supply))
-            notify = pending_cli.notifier(out, spec, ctx.run_id, report.rollout_notifier(out, args, view))
+            notify = _kept_going(out, pending_cli.notifier(out, spec, ctx.run_id,
+                                                           report.rollout_notifier(out, args, view)))
             until = time.monotonic() + args.until if args.until else None
             result = apply_fleet(ctx, hosts, releases, policy, notify, until=until)
     finally:
         if supply is not None:
             supply.close()
-    pending_cli.after_apply(spec, result)
+    try:
+        pending_cli.after_apply(spec, result)
+    except OSError as exc:    # the rollout happened: its outcome and exit code matter more than the record
+        _unsaved(out, "the pending record (robots for `apply` to pick up next time)", exc)
     return _finish(out, result)
+
+
+def _kept_going(out: Output, notify: Callable[[str, dict], None]) -> Callable[[str, dict], None]:
+    """`apply --until` writes the pending record at every retry: one it cannot write is warned
+    about once, and the retries go on (an OSError out of notify would abandon the rollout)."""
+    warned: list[OSError] = []
+
+    def guarded(event: str, data: dict) -> None:
+        try:
+            notify(event, data)
+        except OSError as exc:
+            if event != "pending":
+                raise
+            if not warned:
+                _unsaved(out, "the pending record", exc)
+            warned.append(exc)
+    return guarded
+
+
+def _unsaved(out: Output, what: str, exc: OSError) -> None:
+    where = f" at {exc.filename}" if exc.filename else ""
+    out.warn(f"warning: could not write {what}{where}: {exc.strerror or exc}")
 
 
 def _policy(policy: RolloutPolicy, args: argparse.Namespace) -> RolloutPolicy:
@@ -283,7 +309,13 @@ def _finish(out: Output, result: FleetResult) -> int:
     from rosdeploy import runlog
     from rosdeploy.cli import report
 
-    folder = runlog.save(result, out.masked)
+    try:
+        folder = runlog.save(result, out.masked)
+    except OSError as exc:    # ROSDEPLOY_RUNS_DIR a file, a full disk: still report what the robots did
+        if not exc.filename:
+            exc.filename = str(runlog.runs_dir() / result.run_id)
+        _unsaved(out, "the run record", exc)
+        folder = None
     report.summary(out, result, folder)
     if result.interrupted:
         return EXIT_INTERRUPTED
@@ -329,12 +361,12 @@ def _each(args: argparse.Namespace, spec: FleetSpec, hosts: Sequence[Host],
           work: Callable[[RunContext, Host], Any]) -> list:
     """Read-only work on every robot, over connections the keeper holds for the next command."""
     from rosdeploy.keeper import kept_connect
-    from rosdeploy.rollout import parallel
+    from rosdeploy.rollout import gather
 
     ctx = context(args, spec, lambda host, msg: None)
     if spec.ssh_persist > 0:
         ctx = replace(ctx, connect=kept_connect(spec.ssh_persist))
-    return parallel(hosts, lambda h: work(ctx, h), spec.rollout.forks)
+    return gather(hosts, lambda h: work(ctx, h), spec.rollout.forks)
 
 
 def cmd_connections(args: argparse.Namespace, out: Output) -> int:

@@ -156,8 +156,9 @@ def _view(args: argparse.Namespace, out: Output) -> int:
 
 def _edit(args: argparse.Namespace, out: Output) -> int:
     path = args.files[0]
+    editor = _editor(path)     # before anything is decrypted: a bad $EDITOR must not run the plaintext
     vault = _vault(args, path, new_password=not os.path.exists(path))
-    changed = vaultlib.edit_file(path, vault, lambda temp: _run_editor(temp, path),
+    changed = vaultlib.edit_file(path, vault, lambda temp: _run_editor(editor, temp, path),
                                  ansible_format=_ansible_format(args, path))
     if not out.as_json:
         out.line(f"saved {path}" if changed else f"no changes to {path}")
@@ -189,8 +190,23 @@ def _confirmed_prompt(path: str) -> vaultlib.Prompt:
     return ask
 
 
-def _run_editor(temp: str, path: str) -> None:
-    editor = shlex.split(os.environ.get("VISUAL") or os.environ.get("EDITOR") or "vi")
+def _editor(path: str) -> list[str]:
+    """$VISUAL or $EDITOR as a command: `code --wait` is two words. A value of blanks only, or with
+    an unclosed quote, is refused: split to nothing, the decrypted file's name would be the command."""
+    name = "VISUAL" if os.environ.get("VISUAL") else "EDITOR"
+    value = os.environ.get(name) or "vi"
+    try:
+        editor = shlex.split(value)
+    except ValueError as exc:
+        raise VaultError([Problem(path, None, "", f"${name} {shown(value)} cannot be parsed ({exc}): "
+                                                  "set it to an editor command, e.g. EDITOR=vi")]) from None
+    if not editor:
+        raise VaultError([Problem(path, None, "", f"${name} is empty ({shown(value)}): set it to an editor "
+                                                  "command, e.g. EDITOR=vi")])
+    return editor
+
+
+def _run_editor(editor: list[str], temp: str, path: str) -> None:
     try:
         done = subprocess.run([*editor, temp], check=False)
     except OSError as exc:

@@ -127,9 +127,32 @@ def _renamed_whole(stage: str, root: Path) -> bool:
 
 
 def _move_into_place(stage: str, root: Path, names: Iterable[str]) -> None:
-    """A robot's folder moves in one rename; over an existing folder, file by file (what else is there stays)."""
+    """A robot's folder moves in one rename; over an existing folder, file by file (what else is there stays).
+    Every conflict is looked for first: one found half-way left some robots updated, some not."""
+    names = list(names)
+    for name in names:
+        _check(os.path.join(stage, name), os.path.join(root, name))
     for name in names:
         _merge(os.path.join(stage, name), os.path.join(root, name))
+
+
+def _check(source: str, target: str) -> None:
+    """Raise what _merge would meet moving `source` to `target`, naming `target` (the user's path)."""
+    if not os.path.lexists(target):
+        return
+    if os.path.islink(target) or not os.path.isdir(target):
+        _blocked(target)
+    for entry in os.scandir(source):
+        inside = os.path.join(target, entry.name)
+        if entry.is_dir(follow_symlinks=False):
+            _check(entry.path, inside)
+        elif os.path.isdir(inside) and not os.path.islink(inside):
+            raise OSError(errno.EISDIR, "a folder where the release has a file", inside)
+
+
+def _blocked(target: str) -> None:
+    what = "a symbolic link, which render does not write through" if os.path.islink(target) else "File exists"
+    raise OSError(errno.EEXIST, what, target)
 
 
 def _merge(source: str, target: str) -> None:
@@ -138,8 +161,7 @@ def _merge(source: str, target: str) -> None:
     the release has a folder, is the user's to remove. A link where the release has a file is
     replaced, as the file would be."""
     if os.path.islink(target) or (os.path.lexists(target) and not os.path.isdir(target)):
-        what = "a symbolic link, which render does not write through" if os.path.islink(target) else "File exists"
-        raise OSError(errno.EEXIST, what, target)
+        _blocked(target)
     if not os.path.lexists(target):
         os.rename(source, target)
         return

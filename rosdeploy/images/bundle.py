@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import stat
 import tarfile
 import time
 from dataclasses import dataclass
@@ -137,6 +138,7 @@ class Bundle:
 
     @classmethod
     def open(cls, path: Path) -> "Bundle":
+        _regular(path)
         try:
             with tarfile.open(path, "r:") as tar:
                 members = {m.name: (m.offset_data, m.size) for m in tar.getmembers() if m.isfile()}
@@ -194,6 +196,16 @@ def from_bundle(spec: FleetSpec, releases: Sequence[RenderedRelease], path: Path
                          f"write a bundle of this version with `rosdeploy bundle FLEET --version {spec.version}`")
     origin = Origin(f"bundle {path.name}", BundleBackend(bundle, pins))
     return Supply(spec, pins, origin, time.monotonic() - started, via="ssh")
+
+
+def _regular(path: Path) -> None:
+    """A FIFO or a device would be read forever (tarfile waits for a writer that never comes)."""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return      # missing, unreadable: tarfile.open says so in the message of its own
+    if not stat.S_ISREG(mode):
+        raise InputError(f"{path}: not a regular file; give the file `rosdeploy bundle` wrote")
 
 
 # ----------------------------------------------------------------- serving
