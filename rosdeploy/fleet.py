@@ -55,6 +55,7 @@ _DOMAIN = (r"(?:localhost|[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
 REGISTRY_RE = re.compile(rf"{_DOMAIN}(?:/{_COMPONENT})*")
 REPOSITORY_RE = re.compile(rf"{_COMPONENT}(?:/{_COMPONENT})*")
+CONTROLLER_REGISTRY_RE = re.compile(_DOMAIN)
 # Docker's reference grammar (distribution/reference NameTotalLengthMax): the whole repository
 # name, registry host included, is at most 255 characters; the tag's 128 is in TAG_RE.
 MAX_IMAGE_NAME = 255
@@ -306,42 +307,53 @@ def _section(schema: Mapping[str, Convert], required: tuple[str, ...] = ()) -> C
     return convert
 
 
-def _named(key_re: re.Pattern, what: str, item: Convert) -> Convert:
-    """A mapping whose keys the user names (services, environment, vars)."""
+def _named(kind: str, what: str, item: Convert) -> Convert:
+    """A mapping whose keys the user names (services, environment, vars); `kind`: a key of _PATTERNS."""
+    key_re = _PATTERNS[kind][0]
+
     def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
         if not isinstance(value, dict):
             raise Invalid(f"must be a mapping of {what} names to values; got {_kind(value)}")
         out: dict[str, Any] = {}
         for key, sub in value.items():
             if not isinstance(key, str) or not key_re.fullmatch(key):
-                r.error(kp + (key,), f"`{key}` is not a valid {what} name: use {_pattern_hint(key_re)}")
+                r.error(kp + (key,), f"`{key}` is not a valid {what} name: use {_pattern_hint(kind)}")
             else:
                 r.take(item, kp + (key,), sub, out, key)
         return out
     return convert
 
 
-def _pattern_hint(pattern: re.Pattern) -> str:
-    return _HINTS.get(pattern, f"only the characters of the pattern {pattern.pattern}")
+def _pattern_hint(name: str) -> str:
+    pattern, hint = _PATTERNS[name]
+    return hint or f"only the characters of the pattern {pattern.pattern}"
 
 
-_HINTS = {
-    NAME_RE: "lower-case letters, digits, `_` and `-`, starting with a letter or digit (at most 63)",
-    ENV_RE: "letters, digits and `_`, not starting with a digit",
-    DEVICE_RE: "letters, digits, `_`, `.` and `-` (the key of the device in the robot's inventory `devices`)",
-    USER_RE: 'a user name, a uid or uid:gid, e.g. "1000:1000"',
-    TOPIC_RE: "an absolute name of letters, digits and `_` parts (no `__`), e.g. /joint_states or /camera/image_raw",
-    REMOTE_PATH_RE: "an absolute path or one under ~, of letters, digits, `_`, `.`, `-` and `/` only",
+# Each kind of name: its pattern and how to say it. Keyed by name, not by pattern: re caches
+# compiled patterns, so two kinds written alike (device names, group prefixes) are one object.
+_PATTERNS: dict[str, tuple[re.Pattern, str]] = {
+    "name": (NAME_RE, "lower-case letters, digits, `_` and `-`, starting with a letter or digit (at most 63)"),
+    "env": (ENV_RE, "letters, digits and `_`, not starting with a digit"),
+    "device": (DEVICE_RE, "letters, digits, `_`, `.` and `-` (the key of the device in the robot's inventory "
+                          "`devices`)"),
+    "group prefix": (GROUP_PREFIX_RE, "letters, digits, `_`, `.` and `-`, starting with a letter, digit or `_` "
+                                      "(the start of the inventory group names to order the waves by)"),
+    "user": (USER_RE, 'a user name, a uid or uid:gid, e.g. "1000:1000"'),
+    "topic": (TOPIC_RE, "an absolute name of letters, digits and `_` parts (no `__`), e.g. /joint_states or "
+                        "/camera/image_raw"),
+    "remote path": (REMOTE_PATH_RE, "an absolute path or one under ~, of letters, digits, `_`, `.`, `-` and `/` "
+                                    "only"),
 }
 
 
-def _string(pattern: re.Pattern | None = None, what: str = "") -> Convert:
+def _string(kind: str | None = None, what: str = "") -> Convert:
+    """A string; with `kind` (a key of _PATTERNS), one of that kind of name."""
     def convert(r: Reader, kp: KeyPath, value: Any) -> Any:
         if not isinstance(value, str):
             hint = f'; quote it: "{value}"' if isinstance(value, (int, float)) and not isinstance(value, bool) else ""
             raise Invalid(f"must be a string; got {_kind(value)}{hint}")
-        if pattern is not None and not pattern.fullmatch(value):
-            raise Invalid(f"{shown(value)} is not a valid {what}: use {_pattern_hint(pattern)}")
+        if kind is not None and not _PATTERNS[kind][0].fullmatch(value):
+            raise Invalid(f"{shown(value)} is not a valid {what}: use {_pattern_hint(kind)}")
         return value
     return convert
 
@@ -502,15 +514,20 @@ def _registry(r: Reader, kp: KeyPath, value: Any) -> Any:
     if not REGISTRY_RE.fullmatch(value):
         raise Invalid(f"{shown(value)} is not a registry: write host[:port][/path], e.g. registry.local:5000, "
                       "without a scheme (no https://)")
-    port = re.match(r"[^/]*:([0-9]+)", value)
-    if port and not 0 < int(port[1]) < 65536:
-        raise Invalid(f"{shown(value)}: port {port[1]} is not a TCP port (1-65535)")
+    _check_port(value)
     if not _has_registry_host(value + "/image"):
         host = value.partition("/")[0]
         raise Invalid(f"{shown(host)} has no `.` or port and is not localhost, so Docker reads it as a Docker "
                       f"Hub account, not a registry: write the registry's full name or its port, e.g. "
                       f"{host}.local or {host}:5000")
     return value
+
+
+def _check_port(address: str) -> None:
+    """The port of host[:port][/path], if it has one, is a TCP port."""
+    port = re.match(r"[^/]*:([0-9]+)", address)
+    if port and not 0 < int(port[1]) < 65536:
+        raise Invalid(f"{shown(address)}: port {port[1]} is not a TCP port (1-65535)")
 
 
 def _image(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -550,9 +567,11 @@ def _rate(r: Reader, kp: KeyPath, value: Any) -> Any:
 def _controller_registry(r: Reader, kp: KeyPath, value: Any) -> Any:
     value = _string()(r, kp, value)
     scheme, sep, address = value.rpartition("://")
-    if (sep and scheme not in ("http", "https")) or not REGISTRY_RE.fullmatch(address):
-        raise Invalid(f"{shown(value)} is not a registry address: write host[:port], optionally after "
-                      "http:// or https://, e.g. http://127.0.0.1:5000")
+    # host[:port] only: the robots pull `<address>/<image>`, and the controller pushes there too
+    if (sep and scheme not in ("http", "https")) or not CONTROLLER_REGISTRY_RE.fullmatch(address):
+        raise Invalid(f"{shown(value)} is not a registry address: write host[:port] without a path, optionally "
+                      "after http:// or https://, e.g. http://127.0.0.1:5000")
+    _check_port(address)
     return value
 
 
@@ -581,6 +600,8 @@ def _command(r: Reader, kp: KeyPath, value: Any) -> Any:
         r.take(_text, kp + (i,), word, words, i)
     if len(words) < len(value):
         raise Invalid()
+    if not words[0].strip():    # no program: the container (or the check) fails to start it
+        raise Invalid("is empty: the first word is the program to run, e.g. ros2", (0,))
     return tuple(words[i] for i in range(len(value)))
 
 
@@ -607,6 +628,8 @@ def _health_test(r: Reader, kp: KeyPath, value: Any) -> Any:
     if words[0] not in ("CMD", "CMD-SHELL") or len(words) < 2:
         raise Invalid('must start with CMD or CMD-SHELL and then the command, e.g. '
                       '[CMD-SHELL, "ros2 topic list | grep -q /joint_states"]')
+    if not words[1].strip():    # CMD: no program to run, never healthy; CMD-SHELL: `sh -c ''`, always healthy
+        raise Invalid(f"is empty: give the command to run after {words[0]}", (1,))
     return words
 
 
@@ -619,13 +642,27 @@ def _topic(r: Reader, kp: KeyPath, value: Any) -> Any:
     return Topic(name=d["name"], min_rate=d.get("min_rate"))
 
 
+def _topics(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """A service's declared topics, each once (a second entry would be probed and judged twice)."""
+    topics = _listof(_topic, "topics")(r, kp, value)
+    seen: dict[str, int] = {}
+    for i, topic in enumerate(topics):
+        if topic.name in seen:
+            r.error(kp + (i,), f"{topic.name} is already declared at topics[{seen[topic.name]}]: keep one (with "
+                               "the min_rate it needs)")
+        seen.setdefault(topic.name, i)
+    if len(seen) < len(topics):
+        raise Invalid()
+    return topics
+
+
 WAVE_HINT = 'a robot count (1, 5) or a percentage of the targets ("10%")'
 
 
 def wave_target(value: Any, least: int = 1) -> int | str:
     """A robot count of at least `least` (1, 5) or a share of the targets ("10%"); ValueError
     otherwise. Shared by the fleet file's rollout keys and apply's --waves and --max-fail."""
-    if isinstance(value, int) and not isinstance(value, bool) and value >= least:
+    if isinstance(value, int) and not isinstance(value, bool) and least <= value <= MAX_COUNT:
         return value
     if isinstance(value, str) and re.fullmatch(r"[0-9]{1,3}%", value) and 0 < int(value[:-1]) <= 100:
         return value
@@ -636,14 +673,14 @@ def _wave(r: Reader, kp: KeyPath, value: Any) -> Any:
     try:
         return wave_target(value)
     except ValueError:
-        raise Invalid(f"must be {WAVE_HINT}; got {_kind(value)}") from None
+        raise Invalid(f"must be {WAVE_HINT}, a count at most {MAX_COUNT}; got {_kind(value)}") from None
 
 
 def _max_fail(r: Reader, kp: KeyPath, value: Any) -> Any:
     try:
         return wave_target(value, least=0)
     except ValueError:
-        raise Invalid(f"must be 0 or {WAVE_HINT}; got {_kind(value)}") from None
+        raise Invalid(f"must be 0 or {WAVE_HINT}, a count at most {MAX_COUNT}; got {_kind(value)}") from None
 
 
 def _restart(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -654,7 +691,7 @@ def _restart(r: Reader, kp: KeyPath, value: Any) -> Any:
 
 
 def _order_by(r: Reader, kp: KeyPath, value: Any) -> Any:
-    return None if value is None else _string(GROUP_PREFIX_RE, "group prefix")(r, kp, value)
+    return None if value is None else _string("group prefix", "group prefix")(r, kp, value)
 
 
 def _mount(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -670,7 +707,25 @@ def _mount(r: Reader, kp: KeyPath, value: Any) -> Any:
     taken = managed_mount(target)
     if taken:
         raise Invalid(f"{target} is where rosdeploy mounts {taken} itself: choose another container path")
+    problem = proc_mount_problem(target)
+    if problem:
+        raise Invalid(problem)
     return f"{source}:{target}:{mode}"
+
+
+# runc mounts procfs at /proc and refuses any other mount on or below it but these (lxcfs's
+# files among them); libcontainer/rootfs_linux.go, checkProcMount.
+PROC_MOUNTS_ALLOWED = frozenset({"/proc/cpuinfo", "/proc/diskstats", "/proc/meminfo", "/proc/stat", "/proc/swaps",
+                                 "/proc/uptime", "/proc/loadavg", "/proc/slabinfo", "/proc/net/dev",
+                                 "/proc/sys/kernel/ns_last_pid", "/proc/sys/crypto/fips_enabled"})
+
+
+def proc_mount_problem(target: str) -> str | None:
+    """Why a mount at this container path would stop the container from being created, or None."""
+    if (target == "/proc" or target.startswith("/proc/")) and target not in PROC_MOUNTS_ALLOWED:
+        return (f"{target} is in /proc, where the container runtime (runc) refuses a mount: the container "
+                "would not be created; mount it elsewhere (a kernel setting goes in `compose: {sysctls: ...}`)")
+    return None
 
 
 def normal_path(path: str) -> str:
@@ -783,7 +838,7 @@ def _rotate_every(r: Reader, kp: KeyPath, value: Any) -> Any:
 
 def _deploy_root(r: Reader, kp: KeyPath, value: Any) -> Any:
     """deploy_root: the remote-path pattern (no shell metacharacters), and no `..` anywhere."""
-    value = _string(REMOTE_PATH_RE, "path on the robot (absolute or under ~)")(r, kp, value)
+    value = _string("remote path", "path on the robot (absolute or under ~)")(r, kp, value)
     if ".." in value.split("/"):
         raise Invalid(f"{shown(value)} contains `..`: releases would land outside the folder it names; "
                       "write the folder itself, e.g. ~/rosdeploy or /opt/rosdeploy")
@@ -809,6 +864,26 @@ def remote_root_too_long(path: str) -> str | None:
     return (f"{what}: a deploy root may have at most {MAX_REMOTE_ROOT} characters (releases "
             f"and their files go below it), and {MAX_PATH_NAME} in each name (Linux's limit); use a short "
             "folder, e.g. ~/rosdeploy or /opt/rosdeploy")
+
+
+def home_problem(value: Any) -> str | None:
+    """Why `value` cannot be rosdeploy_home (the SSH user's home, which makes a `~` deploy root
+    absolute in the logrotate config), or None. logrotate runs as root: it would read `~` as
+    /root, and a relative path from wherever cron starts it."""
+    if (not isinstance(value, str) or not value.startswith("/") or not REMOTE_PATH_RE.fullmatch(value)
+            or ".." in value.split("/")):
+        return ("must be the absolute path of the SSH user's home on the robot, without `~`, `..` or shell "
+                f"metacharacters, e.g. /home/ubuntu (logrotate runs as root); got {_kind(value)}")
+    return remote_root_too_long(value)
+
+
+def _fleet_var(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """A template variable of `vars:`, as written; the ones rosdeploy itself reads are checked here
+    (the DDS and logrotate tunables per robot, in render.py: the inventory may replace them)."""
+    problem = home_problem(value) if kp[-1] == "rosdeploy_home" else None
+    if problem:
+        raise Invalid(problem)
+    return value
 
 
 def _compose_passthrough(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -892,24 +967,24 @@ def _health_period(zero: str | None) -> Convert:
 
 _HEALTHCHECK = {"test": _health_test, "interval": _health_period(None), "timeout": _health_period(None),
                 "retries": _integer(1), "start_period": _health_period("no start period")}
-_TOPIC = {"name": _string(TOPIC_RE, "ROS topic name (absolute, e.g. /joint_states)"), "min_rate": _positive}
+_TOPIC = {"name": _string("topic", "ROS topic name (absolute, e.g. /joint_states)"), "min_rate": _positive}
 SERVICE = {
     "image": _image, "tag": _tag, "command": _command,
-    "environment": _named(ENV_RE, "environment variable", _text),
-    "secrets": _named(ENV_RE, "environment variable", _string(ENV_RE, "inventory variable name")),
-    "devices": _listof(_string(DEVICE_RE, "device name"), "logical device names"),
+    "environment": _named("env", "environment variable", _text),
+    "secrets": _named("env", "environment variable", _string("env", "inventory variable name")),
+    "devices": _listof(_string("device", "device name"), "logical device names"),
     "volumes": _volumes,
     "gpu": _boolean, "restart": _restart,
     "resources": _section({"memory": _memory, "cpus": _cpus}),
     "healthcheck": _healthcheck,
-    "depends_on": _listof(_string(NAME_RE, "service name"), "service names"),
-    "topics": _listof(_topic, "topics"),
-    "user": _string(USER_RE, "user (name, uid or uid:gid)"),
+    "depends_on": _listof(_string("name", "service name"), "service names"),
+    "topics": lambda r, kp, v: _topics(r, kp, v),
+    "user": _string("user", "user (name, uid or uid:gid)"),
     "privileged": _boolean, "allow_privileged": _boolean,
-    "profiles": _listof(_string(NAME_RE, "profile name"), "profile names"),
+    "profiles": _listof(_string("name", "profile name"), "profile names"),
     "compose": _compose_passthrough,
     "compose_interpolate": _boolean,
-    "files": _listof(_string(NAME_RE, "file name (a key of the top-level `files:`)"), "file names"),
+    "files": _listof(_string("name", "file name (a key of the top-level `files:`)"), "file names"),
 }
 SECTIONS: dict[str, Mapping[str, Convert]] = {
     "ssh": {"known_hosts": _known_hosts_file, "config": _ssh_config_file,
@@ -920,28 +995,28 @@ SECTIONS: dict[str, Mapping[str, Convert]] = {
     "preflight": {"min_free_disk_mb": _integer(0)},
     "health": {"timeout": _positive_duration, "stable": _duration, "interval": _positive_duration,
                "topic_window": _positive_duration, "topics_within": _positive_duration,
-               "probe_service": _string(NAME_RE, "service name")},
+               "probe_service": _string("name", "service name")},
     "rollout": {"waves": _waves, "max_fail": _max_fail, "forks": _integer(1),
                 "order_by": _order_by, "pause": _duration,
-                "retry": _duration, "retry_max": _duration, "count_busy": _boolean},
+                "retry": _positive_duration, "retry_max": _positive_duration, "count_busy": _boolean},
     "rollback": {"auto": _boolean, "fleet": _boolean, "keep_releases": _integer(2),
                  "guard": _enum("revert", "finish", "off"), "guard_margin": _duration},
     "images": {"via": _enum("registry", "ssh"), "max_rate": _rate, "total_rate": _rate,
                "controller_registry": _controller_registry},
 }
 TOP = {
-    "project": _string(NAME_RE, "project name"),
+    "project": _string("name", "project name"),
     "inventory": Reader.local_path,
     "registry": _registry,
     "version": _tag,
     "templates": Reader.local_path,
     "deploy_root": _deploy_root,
     **{name: _section(schema) for name, schema in SECTIONS.items()},
-    "services": _named(NAME_RE, "service", _section(SERVICE, required=("image",))),
-    "vars": _named(ENV_RE, "template variable", lambda r, kp, v: v),
+    "services": _named("name", "service", _section(SERVICE, required=("image",))),
+    "vars": _named("env", "template variable", _fleet_var),
     "ready": readiness.convert,     # the readiness gate (ready.py)
     "window": windows.convert,      # the maintenance window (window.py)
-    "files": _named(NAME_RE, "file", lambda r, kp, v: _robot_file(r, kp, v)),
+    "files": _named("name", "file", lambda r, kp, v: _robot_file(r, kp, v)),
 }
 
 
@@ -1024,20 +1099,34 @@ def _check_services(r: Reader, top: dict) -> None:
     probe = health.get("probe_service")
     if isinstance(probe, str) and probe not in names:
         r.error(("health", "probe_service"), f"no service is named `{probe}`{_did_you_mean(probe, names)}")
+    elif isinstance(probe, str) and _profiled(r, probe):
+        r.error(("health", "probe_service"), f"`{probe}` has profiles, and a deploy never starts a service with "
+                                             "profiles: the gate's probe would find no container; name a service "
+                                             "without profiles")
     _check_gate_can_pass(r, health)
     _check_cycles(r, services)
     _check_file_refs(r, services, top.get("files"))
 
 
+# health keys that count from the switch, as `timeout` does, and what each is
+_GATE_WAITS = {"stable": "a stable window", "topic_window": "the ROS probe's listening",
+               "topics_within": "the wait for a topic's publisher"}
+
+
 def _check_gate_can_pass(r: Reader, health: dict) -> None:
-    """`stable` and `timeout` both count from the switch: a stable window as long as the whole gate
-    fails every deploy, and rolls it back."""
-    stable, timeout = (health.get(k, getattr(HealthPolicy, k)) for k in ("stable", "timeout"))
-    numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (stable, timeout))
-    if numbers and stable >= timeout:
-        r.error(("health", "stable" if "stable" in health else "timeout"),
-                f"health.stable ({stable:g} s) is not shorter than health.timeout ({timeout:g} s), which counts "
-                "from the switch too: no release could pass the gate; make stable shorter than timeout")
+    """`stable`, `topic_window` and `topics_within` count from the switch, as `timeout` does: one as
+    long as the whole gate fails every deploy, and rolls it back."""
+    timeout = health.get("timeout", HealthPolicy.timeout)
+    for key, what in _GATE_WAITS.items():
+        if key != "stable" and key not in health:   # their defaults only bound what the gate waits for
+            continue
+        wait = health.get(key, getattr(HealthPolicy, key))
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (wait, timeout))
+        if numbers and wait >= timeout:
+            r.error(("health", key if key in health else "timeout"),
+                    f"health.{key} ({wait:g} s) is not shorter than health.timeout ({timeout:g} s), which counts "
+                    f"from the switch too: no release could pass the gate ({what} would outlast it); make "
+                    f"{key} shorter than timeout")
 
 
 def _check_service(r: Reader, kp: KeyPath, svc: dict, names: list[str], registry: Any) -> None:
@@ -1088,6 +1177,15 @@ def _check_dependency(r: Reader, kp: KeyPath, name: str, dep: str, names: list[s
     elif isinstance(written, dict) and "healthcheck" not in written:
         r.error(kp, f"`{dep}` has no healthcheck, so it never becomes healthy and `{name}` (which waits for "
                     f"service_healthy) would never start: give `{dep}` a healthcheck (or `healthcheck: image`)")
+    elif _profiled(r, dep) and not r.raw(("services", name, "profiles")):
+        r.error(kp, f"`{dep}` has profiles, and a deploy never starts a service with profiles: `{name}` would "
+                    f"wait for it forever; remove `{dep}`'s profiles or this dependency")
+
+
+def _profiled(r: Reader, service: str) -> bool:
+    """Does the service declare profiles (well-formed ones: bad names were reported already)?"""
+    kp = ("services", service, "profiles")
+    return bool(r.raw(kp)) and kp not in r.refused
 
 
 def _check_cycles(r: Reader, services: dict) -> None:
@@ -1186,7 +1284,7 @@ def _robot_file(r: Reader, kp: KeyPath, value: Any) -> Any:
                       "or `var:` (an inventory variable, e.g. calibration in host_vars)")
     kind, source = kinds[0], d[kinds[0]]
     if kind == "var" and not ENV_RE.fullmatch(source):
-        raise Invalid(f"{shown(source)} is not an inventory variable name: use {_pattern_hint(ENV_RE)}", (kind,))
+        raise Invalid(f"{shown(source)} is not an inventory variable name: use {_pattern_hint('env')}", (kind,))
     if kind != "var" and (source.startswith(("/", "~")) or ".." in source.split("/")
                           or not _FILE_SOURCE_RE.fullmatch(source)):
         raise Invalid(f"{shown(source)} must be a path inside the fleet repo, relative to the fleet "
@@ -1205,6 +1303,9 @@ def _robot_file(r: Reader, kp: KeyPath, value: Any) -> Any:
     taken = managed_mount(target)
     if taken:
         raise Invalid(f"{target} is where rosdeploy mounts {taken} itself: choose another path", ("target",))
+    in_proc = proc_mount_problem(target)
+    if in_proc:
+        raise Invalid(in_proc, ("target",))
     return {"kind": kind, "source": source, "target": target, "secret": d.get("secret", False)}
 
 
@@ -1229,17 +1330,35 @@ def _file_targets(r: Reader, service: str, known: dict, declared: list[str]) -> 
             if target in targets:
                 r.error(("services", service, "files", i), f"`{ref}` and `{targets[target]}` both mount at {target}")
             targets.setdefault(target, ref)
+    for i, ref in r.items(("services", service, "files")):
+        target = normal_path(known[ref]["target"]) if isinstance(known.get(ref), dict) else ""
+        under = _file_above(target, targets)
+        if under:
+            r.error(("services", service, "files", i), f"{target} is inside {under}, where files.{targets[under]} "
+                                                       "is mounted as a file: the container would not be created "
+                                                       "(not a directory); move one of them")
     return targets
+
+
+def _file_above(path: str, targets: Mapping[str, str]) -> str | None:
+    """The file target that `path` lies below (a mount there cannot be made: a file is no folder)."""
+    return next((t for t in targets if path.startswith(t + "/")), None)
 
 
 def _check_volumes_at_files(r: Reader, service: str, targets: dict[str, str]) -> None:
     """A bind mount where one of the service's files is mounted: compose refuses the file ("duplicate
-    mount point"), or one of the two would silently hide the other."""
+    mount point"), or one of the two would silently hide the other; or below one: no mount can be
+    made inside a file."""
     for i, mount in r.items(("services", service, "volumes")):
         target = _mount_target(mount)   # items _mount refused are left out: this one is well formed
+        under = _file_above(target, targets)
         if target in targets:
             r.error(("services", service, "volumes", i), f"{target} is also the target of files.{targets[target]}: "
                                                          "one container path takes one mount; change one")
+        elif under:
+            r.error(("services", service, "volumes", i), f"{target} is inside {under}, where files.{targets[under]} "
+                                                         "is mounted as a file: the container would not be created "
+                                                         "(not a directory); move one of them")
 
 
 def problem_at(spec: FleetSpec, keypath: KeyPath, message: str, **kw: Any) -> Problem:

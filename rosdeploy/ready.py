@@ -117,6 +117,9 @@ def convert(r: Any, kp: tuple, value: Any) -> ReadyPolicy | bool | None:
                 r.error(kp + (key,), f"must be a duration like 10s, 2m or 1h; got {shown(value[key])}")
     if times.get("interval") == 0:
         r.error(kp + ("interval",), "must be above 0 (the pause between two checks)")
+    if times.get("topic_wait") == 0:
+        r.error(kp + ("topic_wait",), "must be above 0 (how long a ROS condition listens for a message): a "
+                                      "topic condition would hear nothing, e.g. 3s")
     when = value.get("when")
     if not isinstance(when, list) or not when:
         r.error(kp + ("when",), "required: a list of conditions, e.g. `- {topic: /robot_mode, field: data, is: IDLE}`")
@@ -160,6 +163,11 @@ def _topic(r: Any, kp: tuple, value: dict) -> Condition | None:
         r.error(kp + ("topic",), f"{shown(topic)} is not an absolute ROS topic name, e.g. /robot_mode")
         return None
     if "quiet" in value:
+        extra = [k for k in ("field", *OPS) if k in value]
+        if extra:    # a quiet condition compares nothing: `is:` would silently be dropped
+            r.error(kp + (extra[0],), f"`quiet:` (the topic silent, or only zeros) takes no `{extra[0]}`: make "
+                                      "it a condition of its own, with `field:` and one comparison")
+            return None
         try:
             return Condition("quiet", topic=topic, quiet=parse_duration(value["quiet"]))
         except ValueError:
@@ -191,10 +199,14 @@ def _command(r: Any, kp: tuple, value: dict) -> Condition | None:
         r.error(kp + ("service",), f"{shown(service)} is not a service name")
         return None
     if isinstance(command, str):
-        command = ["sh", "-c", command]
+        # an empty shell line exits 0: the condition would always hold
+        command = ["sh", "-c", command] if command.strip() else []
     if not isinstance(command, list) or not command or not all(isinstance(a, (str, int, float)) for a in command):
         r.error(kp + ("command",), "required: the command to run in the container, as a list "
                                    "([test, -e, /tmp/idle]) or one shell line")
+        return None
+    if not str(command[0]).strip():     # no program: the exec fails, and the condition never holds
+        r.error(kp + ("command", 0), "is empty: the first word is the program to run, e.g. [test, -e, /tmp/idle]")
         return None
     return Condition("command", service=service, command=tuple(str(a) for a in command))
 
@@ -344,6 +356,12 @@ GATE_VARS = {"ready": "readiness gate (a mapping with `when:`, or false)",
              "window": "maintenance window (a mapping with start and duration, or false)"}
 
 
+def is_gate_shaped(value: Any) -> bool:
+    """Could this short `ready`/`window` var be rosdeploy's (a mapping, or false/true)? Another
+    tool's value (`ready=true` as INI text, `window=off`) is not, and rosdeploy ignores it."""
+    return isinstance(value, (Mapping, bool))
+
+
 def checked_var(name: str) -> Callable[[Any], Any]:
     """The inventory's converter of a `ready`/`window` var: checked where it is set (the
     inventory names the file and line), kept as written for host_setting."""
@@ -380,6 +398,8 @@ def host_setting(spec: Any, host: Any, var: str, problems: list | None = None) -
     from rosdeploy.window import convert as convert_window
 
     used = next((name for name in ("rosdeploy_" + var, var) if name in host.vars), None)
+    if used == var and not is_gate_shaped(host.vars[var]):
+        used = None     # another tool's `ready`/`window`: the inventory warned it is ignored, and it is
     if used is None:
         return getattr(spec, var)
     path, _, line = host.source.rpartition(":")

@@ -76,25 +76,52 @@ _YAML_UNSAFE = re.compile("[\x7f-\x9f\u2028\u2029\ufeff\ud800-\udfff]")
 _LINE_BREAKS = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
 
 
-def _int_at_least(low: int) -> Any:
-    return lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= low
+# Fast DDS keeps durations as int32 seconds (Duration_t) and counts as 32-bit; logrotate reads its
+# counts as int: past 2**31 - 1 a tunable is a typo, and would overflow the reader on the robot.
+MAX_TUNABLE = 2**31 - 1
+# SO_RCVBUF is an int: CycloneDDS cannot ask for a socket buffer of 2 GiB or more.
+MAX_SOCKET_BUFFER = 2**31 - 1
+_SOCKET_BUFFER_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)[ \t]*([kKMG]i?)?B?")
+_LOGROTATE_SIZE_RE = re.compile(r"([0-9]+)([kMG]?)")
+
+
+def _int_between(low: int, high: int = MAX_TUNABLE) -> Any:
+    return lambda v: isinstance(v, int) and not isinstance(v, bool) and low <= v <= high
+
+
+def _size_within(pattern: re.Pattern, low: int, high: int) -> Any:
+    """A size `pattern` reads as (number, unit of k, M or G, binary as CycloneDDS and logrotate
+    read them) between low and high bytes."""
+    def check(value: Any) -> bool:
+        try:
+            match = None if isinstance(value, bool) else pattern.fullmatch(str(value))
+        except ValueError:      # str() of an int past 4,300 digits
+            return False
+        if not match:
+            return False
+        scale = 1024 ** ("kMG".index(match.group(2)[0].replace("K", "k")) + 1) if match.group(2) else 1
+        return low <= float(match.group(1)) * scale <= high
+    return check
 
 
 # Inventory (or fleet `vars:`) variables the templates read: name -> (default, check, what it must be).
 TUNABLES: dict[str, tuple[Any, Any, str]] = {
-    "dds_lease_duration": (10, _int_at_least(1), "whole seconds"),
-    "dds_lease_announcement": (3, _int_at_least(1), "whole seconds"),
+    "dds_lease_duration": (10, _int_between(1), f"whole seconds from 1 to {MAX_TUNABLE}"),
+    # below dds_lease_duration, too (Renderer._tunables): Fast DDS refuses an announcement period
+    # as long as the lease, and the peers would drop the participant between two announcements
+    "dds_lease_announcement": (3, _int_between(1), f"whole seconds from 1 to {MAX_TUNABLE}"),
     # Fast DDS sends 5 announcements 100 ms apart, then one per lease announcement (3 s),
     # and does not answer a new participant's. One that starts later than the announcements
     # last (a later container, the gate's ROS probe, often 3-4 s after the driver) waits up
     # to 3 s to discover its peers: seen in 5 of 12 gate probes with 15 x 200 ms. 50 x 200 ms
     # covers health.topics_within's default 10 s, for a one-off burst of small packets.
-    "dds_initial_announcements": (50, _int_at_least(1), "a number of announcements"),
-    "dds_initial_announcement_period_ms": (200, _int_at_least(1), "whole milliseconds"),
-    "dds_socket_buffer": ("10MB", lambda v: bool(re.fullmatch(r"[0-9]+(\.[0-9]+)?[ \t]*([kKMG]i?)?B?", str(v))),
-                          "a size like 10MB or 8MiB"),
-    "logrotate_size": ("50M", lambda v: bool(re.fullmatch(r"[0-9]+[kMG]?", str(v))), "a size like 50M"),
-    "logrotate_keep": (5, _int_at_least(0), "a number of rotated files"),
+    "dds_initial_announcements": (50, _int_between(1), f"a number of announcements from 1 to {MAX_TUNABLE}"),
+    "dds_initial_announcement_period_ms": (200, _int_between(1), f"whole milliseconds from 1 to {MAX_TUNABLE}"),
+    "dds_socket_buffer": ("10MB", _size_within(_SOCKET_BUFFER_RE, 1, MAX_SOCKET_BUFFER),
+                          "a size like 10MB or 8MiB, below 2GiB (a socket buffer size is an int)"),
+    "logrotate_size": ("50M", _size_within(_LOGROTATE_SIZE_RE, 1, 1 << 40),
+                       "a size above 0 and at most 1024G, like 50M"),
+    "logrotate_keep": (5, _int_between(0), f"a number of rotated files from 0 to {MAX_TUNABLE}"),
 }
 
 
@@ -298,6 +325,20 @@ def _taken_names(builtin: Mapping[str, str]) -> dict[str, str]:
     return taken
 
 
+def _output_name_problem(name: str) -> str | None:
+    """Why an extra template's output name (its file name without .j2) cannot be a release file,
+    or None. `.j2` and `..j2` name the release folder or its parent; a blank or a leading `-`
+    is a name the robot's shell scripts and compose would split or read as an option."""
+    if name in ("", ".", ".."):
+        return (f"renders to {shown(name)}, which is no file name (it would be the release folder or its "
+                "parent): name the template NAME.j2, e.g. notes.txt.j2")
+    if name.startswith("-") or any(c.isspace() or not c.isprintable() for c in name):
+        return (f"renders to {shown(name)}: a file name with a blank, a control character or a leading `-` "
+                "is split or read as an option by the robot's shell scripts and compose; rename the template, "
+                "e.g. notes.txt.j2")
+    return None
+
+
 def _escape_dollars(value: Any) -> Any:
     """`compose:` values are literal unless the service opts in: `$` -> `$$` in every string value."""
     if isinstance(value, dict):
@@ -429,6 +470,8 @@ class Renderer:
                  if p.is_file() and p.name not in known and not p.name.startswith("_")}
         problems = [Problem(str(self.override / extra[name]), None, "", f"{name} {why}")
                     for name, why in sorted(_taken_names(builtin).items()) if name in extra]
+        problems += [Problem(str(self.override / template), None, "", why)
+                     for name, template in sorted(extra.items()) for why in [_output_name_problem(name)] if why]
         if problems:
             raise RenderError(problems)
         return extra
@@ -551,7 +594,8 @@ class Renderer:
         """The inventory vars rosdeploy itself writes into the (not secret) DDS profile, compose.yml
         and logrotate config: refused if they come from a vault."""
         with secret_reads() as secret:
-            out = {"peers": self._peers(host, variables, problems),
+            peers = self._peers(host, variables, problems)
+            out = {"peers": peers, "ipv6_peers": tuple(p for p in peers if _is_ipv6(p)),
                    "logs_glob": f"{self._deploy_root(host, variables)}/{self.spec.project}/logs/*/*.log",
                    **self._tunables(host, variables, problems)}
         problems.extend(_host_problem(host, var, f"{secret_read(var, source)} is written to "
@@ -666,11 +710,11 @@ class Renderer:
         if isinstance(extra, str):
             extra = [extra]
         if not isinstance(extra, (list, tuple)) or not all(isinstance(p, str) and p for p in extra):
-            problems.append(_host_problem(host, "dds_peers", "dds_peers must be a list of robot addresses"))
+            problems.append(self._var_problem(host, "dds_peers", "dds_peers must be a list of robot addresses"))
             return ()
         bad = [p for p in extra if not _is_peer_address(p)]
         if bad:
-            problems.append(_host_problem(host, "dds_peers", (
+            problems.append(self._var_problem(host, "dds_peers", (
                 f"{', '.join(repr(p) for p in bad[:5])} {'is' if len(bad) == 1 else 'are'} not an IP address or "
                 "host name: list the other robots' addresses, e.g. [10.0.0.12, amr-2.local]")))
             return ()
@@ -678,6 +722,14 @@ class Renderer:
         seen: dict[str, None] = {}
         for peer in [*own, *extra]:
             seen.setdefault(peer, None)
+        ipv6 = [p for p in seen if _is_ipv6(p)]
+        if self.spec.rmw == "cyclonedds" and ipv6 and len(ipv6) < len(seen):
+            # CycloneDDS runs one transport per domain, udp (IPv4) or udp6: it cannot reach both kinds
+            problems.append(self._var_problem(host, "dds_peers", (
+                f"{', '.join(repr(p) for p in ipv6[:5])}: CycloneDDS talks either IPv4 or IPv6 in a domain, and "
+                f"the other peers ({', '.join(repr(p) for p in seen if p not in ipv6)[:200]}) are IPv4 or host "
+                "names: list every peer by its IPv4 address, or every one by its IPv6 address on host networking")))
+            return ()
         return tuple(seen)
 
     @staticmethod
@@ -709,15 +761,28 @@ class Renderer:
         home = variables.get("rosdeploy_home") or ("/root" if host.user in (None, "root") else f"/home/{host.user}")
         return str(home).rstrip("/") + root[1:]
 
-    @staticmethod
-    def _tunables(host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> dict[str, Any]:
+    def _tunables(self, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> dict[str, Any]:
         out = {}
         for name, (default, valid, what) in TUNABLES.items():
             value = variables.get(name, default)
             if not valid(value):
-                problems.append(_host_problem(host, name, f"{name} must be {what}; got {shown(value)}"))
+                problems.append(self._var_problem(host, name, f"{name} must be {what}; got {shown(value)}"))
             out[name] = value
+        lease, announce = out["dds_lease_duration"], out["dds_lease_announcement"]
+        both = all(TUNABLES[n][1](out[n]) for n in ("dds_lease_duration", "dds_lease_announcement"))
+        if both and announce >= lease:
+            problems.append(self._var_problem(host, "dds_lease_announcement", (
+                f"dds_lease_announcement ({announce} s) must be shorter than dds_lease_duration ({lease} s): the "
+                "peers would drop this robot between two announcements (Fast DDS refuses it); make it about a "
+                "third of the lease")))
         return out
+
+    def _var_problem(self, host: Host, name: str, message: str) -> Problem:
+        """At the var `name` where its value comes from: the robot's inventory, else the fleet
+        file's `vars:` (where the inventory does not set it, the robot's declaration is no cause)."""
+        if name not in host.vars and name in self.spec.vars:
+            return self._problem(("vars", name), f"robot {shown(host.name)}: {message}")
+        return _host_problem(host, name, message)
 
     def _file(self, out: str, template: jinja2.Template, context: Mapping[str, Any], host: Host) -> RenderedFile:
         if out != ENV_FILE:
@@ -778,6 +843,14 @@ def _is_peer_address(peer: str) -> bool:
         return True
     except ValueError:     # digits and dots only are meant as IPv4 (`256.1.1.1`), not as a name
         return not re.fullmatch(r"[0-9.]+", peer) and bool(_HOSTNAME.fullmatch(peer))
+
+
+def _is_ipv6(peer: str) -> bool:
+    """An IPv6 address (a zone like `%eth0` included): a locator of its own kind, udpv6 or udp6."""
+    try:
+        return isinstance(ipaddress.ip_address(peer), ipaddress.IPv6Address)
+    except ValueError:
+        return False
 
 
 def _searched(host: Host) -> list[str]:

@@ -51,6 +51,16 @@ def _hours(d: timedelta) -> str:
     return f"{minutes // 60}h{minutes % 60:02d}m" if minutes % 60 else f"{minutes // 60}h"
 
 
+# Files of the zoneinfo folder that are not IANA zone names: `localtime` is the controller's own
+# zone (not the robots'), `Factory` has no offset of any place, `posixrules` is a default rule set;
+# posix/ and right/ are copies of the zones (right/ counts leap seconds, off from wall clocks).
+_NOT_ZONES = frozenset({"localtime", "Factory", "posixrules"})
+
+
+def _not_a_zone_name(name: str) -> bool:
+    return name in _NOT_ZONES or name.startswith(("posix/", "right/"))
+
+
 def convert(r: Any, kp: tuple, value: Any) -> Window | bool | None:
     """A fleet-file converter (fleet.Reader protocol): `window:` -> Window, False (none),
     or None after reporting the problems with r.error(keypath, message)."""
@@ -78,6 +88,8 @@ def convert(r: Any, kp: tuple, value: Any) -> Window | bool | None:
                                     f"got {shown(value.get('duration'))}")
     tz = value.get("tz", "UTC")
     try:
+        if _not_a_zone_name(str(tz)):
+            raise ValueError(tz)
         ZoneInfo(str(tz))
     except (ZoneInfoNotFoundError, ValueError):
         r.error(kp + ("tz",), f"{shown(tz)} is not a time zone name: use an IANA name like Europe/Berlin or UTC")

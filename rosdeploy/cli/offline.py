@@ -90,7 +90,7 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
 
     project, hosts = _load(args, out)
     root = Path(args.out)
-    _check_out(root, Path(project.spec.inventory))
+    _check_out(root, Path(project.spec.inventory), [host.name for host in hosts])
     releases, warnings = _render_to(root, lambda sink: deployable(project, hosts, sink))   # or exit 2
     for warning in warnings:
         out.warn(f"{warning.severity}: {warning}")
@@ -105,20 +105,40 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
     return EXIT_OK
 
 
-def _check_out(root: Path, inventory: Path) -> None:
+def _check_out(root: Path, inventory: Path, robots: Sequence[str]) -> None:
     """--out may not be / (robot `etc` would merge its logrotate.conf & co into /etc), nor a
-    folder the inventory is read from (the next run would read the robots' files as inventory)."""
+    folder the inventory is read from (the next run would read the robots' files as inventory),
+    nor hold one as a robot's folder: `--out .` beside the inventory writes robot `group_vars`
+    into ./group_vars, whose compose.yml the next run reads as the vars of group `compose`."""
     out = os.path.realpath(root)
     if out == "/":
         raise InputError([Problem(str(root), None, "--out", "the filesystem root: render writes a folder "
                                   "per robot into --out; give a folder of its own, e.g. /tmp/release")])
-    base = os.path.realpath(inventory if inventory.is_dir() else inventory.parent)
-    read = [base] if inventory.is_dir() else [os.path.join(base, "group_vars"), os.path.join(base, "host_vars")]
-    inside = next((folder for folder in read if os.path.commonpath([out, folder]) == folder), None)
+    read = _read_folders(inventory)
+    inside = _inside(out, read)
     if inside is not None:
         raise InputError([Problem(str(root), None, "--out", f"inside {inside}, which the inventory is read from: "
                                   "the next run would read the rendered files as inventory; give a folder "
                                   "outside it, e.g. /tmp/release")])
+    problems = [Problem(str(root / robot), None, "--out", f"robot {robot}'s folder is {folder}, which the "
+                        "inventory is read from: the next run would read its files as inventory; give a folder "
+                        "of its own, e.g. /tmp/release")
+                # the robot's own name not followed: writeout refuses a link there, in its own words
+                for robot in robots for folder in [_inside(os.path.join(out, robot), read)] if folder]
+    if problems:
+        raise InputError(problems)
+
+
+def _read_folders(inventory: Path) -> list[str]:
+    """The folders the inventory is read from: the inventory folder itself, or group_vars/ and
+    host_vars/ beside an inventory file."""
+    base = os.path.realpath(inventory if inventory.is_dir() else inventory.parent)
+    return [base] if inventory.is_dir() else [os.path.join(base, "group_vars"), os.path.join(base, "host_vars")]
+
+
+def _inside(path: str, folders: Sequence[str]) -> str | None:
+    """The first of `folders` that `path` is or lies in, or None."""
+    return next((folder for folder in folders if os.path.commonpath([path, folder]) == folder), None)
 
 
 def _render_to(root: Path, render: Callable[[Any], tuple[dict[str, RenderedRelease], list[Problem]]],

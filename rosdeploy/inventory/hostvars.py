@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import functools
+import ipaddress
 import os
 import re
 from dataclasses import dataclass
@@ -9,13 +10,13 @@ from typing import Any, Callable, Mapping
 
 from rosdeploy import suggest
 from rosdeploy.errors import Problem, shown
-from rosdeploy.fleet import REMOTE_PATH_RE, known_hosts_problem, remote_root_too_long
+from rosdeploy.fleet import REMOTE_PATH_RE, home_problem, known_hosts_problem, remote_root_too_long
 from rosdeploy.inventory.draft import Layer, Origin
 from rosdeploy.inventory.known import (ANSIBLE_VARS, FALSE, HEX4, MODE, NAME, NEAR_MISS_CUTOFF, SERIAL,
                                        SHELL_UNSAFE, SUBSYSTEM, SYMLINK, TRUE, UDEV_KEYS, UDEV_REQUIRED,
                                        UNIX_GROUP, did_you_mean_hint)
 from rosdeploy.model import UdevDevice, frozen_map
-from rosdeploy.ready import GATE_VARS, checked_var
+from rosdeploy.ready import GATE_VARS, checked_var, is_gate_shaped
 from rosdeploy.yamlsrc import KeyPath
 
 
@@ -226,11 +227,40 @@ def _safe_text(value: Any, what: str, extra_unsafe: str = "") -> str:
     return value
 
 
+MAX_HOST_NAME = 253     # DNS's limit on a whole name (RFC 1035), and well past any ssh config alias
+
+
 def _to_address(value: Any) -> str:
+    """A host name, an ssh config alias or an IP address: ssh is given it as its destination."""
     address = _safe_text(value, "a host name or IP address")
     if address.startswith("-"):
         raise BadValue(f"{shown(address)} starts with '-', which ssh would read as an option; fix the address")
+    if len(address) > MAX_HOST_NAME:
+        raise BadValue(f"{shown(address)} is longer than a host name can be ({MAX_HOST_NAME} characters): give "
+                       "the robot's host name or IP address")
+    problem = _not_an_address(address)
+    if problem:
+        raise BadValue(f"{shown(address)} {problem}")
     return address
+
+
+def _not_an_address(address: str) -> str | None:
+    """What a URL, user@host or host:port given as an address is, and where its parts go; or None."""
+    if "/" in address:
+        return "is a URL or a path, not an address: give the host name or IP address alone (the port in ansible_port)"
+    if "@" in address:
+        return "holds a user (user@host): give the host alone, and the user in ansible_user"
+    if ":" in address and not _is_ip(address):
+        return "is not an IPv6 address, and a port goes in ansible_port: give the host name or IP address alone"
+    return None
+
+
+def _is_ip(text: str) -> bool:
+    try:
+        ipaddress.ip_address(text)
+        return True
+    except ValueError:
+        return False
 
 
 def _to_user(value: Any) -> str:
@@ -268,6 +298,13 @@ def _to_remote_root(value: Any) -> str:
     if too_long:
         raise BadValue(too_long)
     return value
+
+
+def _to_home(value: Any) -> str:
+    problem = home_problem(value)
+    if problem:
+        raise BadValue(problem)
+    return str(value)
 
 
 def _to_route(value: Any) -> str:
@@ -410,14 +447,14 @@ OWN_VARS: dict[str, Var] = {
                    "devices map (logical name: /dev/... path)"),
     "gpu": Var("gpu", _to_bool, _is_bool, "gpu flag (true or false)"),
     "udev": Var("udev", _to_udev, _is_udev, "udev list (entries with symlink, subsystem, vendor, product)"),
-    **{name: Var(None, checked_var(name), lambda v: isinstance(v, (Mapping, bool)), what)   # ready, window
+    **{name: Var(None, checked_var(name), is_gate_shaped, what)   # ready, window
        for name, what in GATE_VARS.items()},
 }
 # Read from Host.vars by transport, deploy and render; checked (and paths made absolute) here.
 PREFIXED_ONLY: dict[str, Var] = {
     "rosdeploy_known_hosts": Var(None, _to_known_hosts),
     "rosdeploy_deploy_root": Var(None, _to_remote_root),
-    "rosdeploy_home": Var(None, _to_remote_root),
+    "rosdeploy_home": Var(None, _to_home),
     "rosdeploy_compose": Var(None, _to_compose),
     "rosdeploy_images_via": Var(None, _to_route),          # docs/images.md
     "rosdeploy_images_max_rate": Var(None, _to_rate),

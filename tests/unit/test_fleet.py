@@ -113,7 +113,9 @@ def full_fleet(fleet_dir: Path) -> dict:
             "healthcheck": {"test": "test -f /ok", "interval": 5, "timeout": "1500ms", "retries": 5,
                             "start_period": "1m"},
             "topics": [{"name": "/scan", "min_rate": 5}], "user": "1000:1000", "privileged": True,
-            "allow_privileged": True, "profiles": ["deploy"], "compose": {"cap_add": ["SYS_NICE"]}}},
+            "allow_privileged": True, "compose": {"cap_add": ["SYS_NICE"]}},
+            # profiled: nothing depends on it, and it is not the probe service (a deploy never starts it)
+            "navigation": {"profiles": ["deploy"]}},
     })
 
 
@@ -125,7 +127,7 @@ def test_every_key_is_read(fleet_dir: Path) -> None:
     assert d.command == ("ros2", "launch", "amr driver", "x.py")
     assert dict(d.environment) == {"A": "1", "B": "true"} and dict(d.secret_env) == {"TOKEN": "fleet_api_token"}
     assert d.devices == ("motor", "lidar") and d.gpu and d.restart == "always"
-    assert (d.memory, d.cpus, d.user, d.profiles) == ("512m", 1.5, "1000:1000", ("deploy",))
+    assert (d.memory, d.cpus, d.user, spec.service("navigation").profiles) == ("512m", 1.5, "1000:1000", ("deploy",))
     assert d.healthcheck == HealthCheck(("CMD-SHELL", "test -f /ok"), "5s", "1500ms", 5, "60s")
     assert d.topics == (Topic("/scan", 5.0),) and d.privileged and d.allow_privileged
     assert dict(d.extra) == {"cap_add": ["SYS_NICE"]}

@@ -29,8 +29,10 @@ def lab(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return Path(shutil.copytree(DATA, tmp_path / "lab"))
 
 
-def run(capsys: pytest.CaptureFixture, lab: Path, command: str) -> tuple[int, str]:
-    extra = ["--out", str(lab / "out")] if command == "render" else []
+def run(capsys: pytest.CaptureFixture, lab: Path, command: str, *argv: str) -> tuple[int, str]:
+    """One command on the lab; render writes to lab/out unless `argv` says where."""
+    extra = ["--out", str(lab / "out")] if command == "render" and "--out" not in argv else []
+    extra += argv
     password = str(lab / "inventory" / ".vault-password")
     code = main([command, str(lab / "fleet.yml"), "--vault-password-file", password, *extra])
     captured = capsys.readouterr()
