@@ -417,6 +417,20 @@ def _gpu_unavailable(ctx: Context, host: Host) -> Iterator[Problem]:
                 "it is deployed there without a GPU reservation; make sure it can run on the CPU"))
 
 
+@rule("host-changes-no-root", "warning", "host", "Robots whose release has host changes can install them as root.",
+      "Connect as root, or set ansible_become: true with sudo to root for the SSH user (or pass "
+      "--no-host-changes to apply).")
+def _host_changes_no_root(ctx: Context, host: Host) -> Iterator[Problem]:
+    from rosdeploy.hostchanges import become
+    if not (host.udev or ctx.spec.log_rotate_every is not None):
+        return
+    refused = become(host).refused
+    if refused:
+        yield host_problem(host, refused.split(" ", 1)[0], (   # each refusal starts with its var
+            f"robot {host.name!r} gets udev rules or log rotation, which are installed as root, and {refused}; "
+            "apply fails there whenever they change"))
+
+
 # ------------------------------------------------------- a robot's release
 
 @rule("compose-invalid", "error", "release", "The rendered compose.yml is valid YAML with a `services` mapping.",

@@ -1141,6 +1141,116 @@ def _check_service(r: Reader, kp: KeyPath, svc: dict, names: list[str], registry
             r.error(kp + ("secrets", name), f"{name} is also in `environment`: keep it in one of the two")
     for i, dep in _deps(r, kp[-1]):
         _check_dependency(r, kp + ("depends_on", i), kp[-1], dep, names, r.raw(("services", dep)))
+    if isinstance(svc.get("compose"), dict):
+        _check_compose_conflicts(r, kp, svc, names)
+
+
+# Sysctls a container may set with its own network namespace (net.*) or IPC namespace; the rest
+# are the robot's kernel's, which runc refuses to touch from a container.
+_NAMESPACED_SYSCTLS = ("net.", "kernel.shm", "kernel.msg", "kernel.sem", "fs.mqueue.")
+
+
+def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]) -> None:
+    """`compose:` keys Docker or Compose refuse beside what rosdeploy renders: each passes the
+    schema alone, and the deploy would fail at the robot (`check` is where to learn it)."""
+    extra, where = svc["compose"], kp + ("compose",)
+    written = svc.get("resources")
+    resources: dict = written if isinstance(written, dict) else {}
+    for key in ("cpu_quota", "cpu_period"):
+        if key in extra and resources.get("cpus") is not None:
+            r.error(where + (key,), f"Docker refuses {key} beside `resources.cpus` (its Nano CPUs): use one of them")
+    memory = _bytes_or_none(resources.get("memory"))
+    reserved = _bytes_or_none(extra.get("mem_reservation"))
+    if memory and reserved and reserved > memory:
+        r.error(where + ("mem_reservation",), "above `resources.memory`: Docker refuses a reservation over the "
+                                              "limit; lower it")
+    swap = _bytes_or_none(extra.get("memswap_limit"))
+    if memory and swap and 0 < swap < memory:
+        r.error(where + ("memswap_limit",), "below `resources.memory`: memory plus swap cannot be less than "
+                                            "memory (Docker refuses it); raise it, or -1 for unlimited swap")
+    host_net = r.raw(("ros", "network_mode")) in (None, "host")
+    for at, name in _sysctl_names(extra.get("sysctls")):
+        if not name.startswith(_NAMESPACED_SYSCTLS):
+            r.error(where + ("sysctls", at), f"{name} is not a namespaced sysctl: runc refuses to set the robot's "
+                                             "kernel from a container; set it on the robot")
+        elif name.startswith("net.") and host_net:
+            r.error(where + ("sysctls", at), f"Docker refuses {name} in the host's network namespace "
+                                             "(`ros.network_mode: host`): net.* sysctls need the container's own; "
+                                             "set it on the robot")
+    _check_tmpfs_at_volumes(r, kp, extra.get("tmpfs"))
+    _check_compose_values(r, where, extra)
+    links = extra.get("links")
+    for i, link in enumerate(links if isinstance(links, list) else []):
+        target = str(link).split(":", 1)[0]
+        if target not in names:
+            r.error(where + ("links", i), f"no service is named `{target}`{_did_you_mean(target, names)}")
+
+
+# What Docker takes on Linux where the Compose schema allows any string
+_ULIMITS = frozenset({"core", "cpu", "data", "fsize", "locks", "memlock", "msgqueue", "nice", "nofile", "nproc",
+                      "rss", "rtprio", "rttime", "sigpending", "stack", "as"})
+_SHARED_NS = re.compile(r"host|container:.+|service:.+")
+
+
+def _check_compose_values(r: Reader, where: KeyPath, extra: dict) -> None:
+    """Values the Compose schema lets through and Docker refuses at the robot."""
+    import ipaddress
+    import signal
+    if isinstance(extra.get("working_dir"), str) and not extra["working_dir"].startswith("/"):
+        r.error(where + ("working_dir",), "must be an absolute path in the container (Docker refuses a relative one)")
+    for i, server in enumerate(extra["dns"] if isinstance(extra.get("dns"), list) else []):
+        try:
+            ipaddress.ip_address(str(server))
+        except ValueError:
+            r.error(where + ("dns", i), f"{shown(server)} is not an IP address: Docker takes DNS servers by address")
+    if extra.get("isolation") not in (None, "default"):
+        r.error(where + ("isolation",), "only `default` exists on Linux (hyperv and process are Windows'): remove it")
+    for key in ("pid", "userns_mode", "ipc", "uts"):
+        value = extra.get(key)
+        if isinstance(value, str) and key != "ipc" and not _SHARED_NS.fullmatch(value):
+            r.error(where + (key,), f"{shown(value)} is none of host, container:NAME, service:NAME (Docker's "
+                                    "names are lower case)")
+    stop = extra.get("stop_signal")
+    if isinstance(stop, str) and not stop.isdigit() and stop.upper().removeprefix("SIG") not in \
+            {s.name[3:] for s in signal.Signals}:
+        r.error(where + ("stop_signal",), f"{shown(stop)} is no signal: e.g. SIGINT (what ros2 launch handles)")
+    limits = extra.get("ulimits")
+    for name, limit in (limits.items() if isinstance(limits, dict) else []):
+        if name not in _ULIMITS:
+            close = suggest(str(name), sorted(_ULIMITS))
+            r.error(where + ("ulimits", name), f"no ulimit is named {shown(name)}: "
+                                               + (f"did you mean `{close[0]}`?" if close else "see ulimit -a"))
+        elif isinstance(limit, dict) and all(isinstance(limit.get(k), int) for k in ("soft", "hard")) \
+                and limit["soft"] > limit["hard"]:
+            r.error(where + ("ulimits", name), "soft is above hard: Docker refuses it")
+
+
+def _sysctl_names(sysctls: Any) -> list[tuple[str | int, str]]:
+    """(key path item, sysctl name) of compose's mapping or `name=value` list form."""
+    if isinstance(sysctls, dict):
+        return [(name, str(name)) for name in sysctls]
+    if isinstance(sysctls, list):
+        return [(i, item.split("=", 1)[0].strip()) for i, item in enumerate(sysctls) if isinstance(item, str)]
+    return []
+
+
+def _bytes_or_none(value: Any) -> int | None:
+    try:
+        return size_bytes(value) if isinstance(value, (str, int)) and not isinstance(value, bool) else None
+    except ValueError:
+        return None
+
+
+def _check_tmpfs_at_volumes(r: Reader, kp: KeyPath, tmpfs: Any) -> None:
+    """A tmpfs where a bind mount of the service goes: compose refuses the duplicate mount point."""
+    entries = [tmpfs] if isinstance(tmpfs, str) else tmpfs if isinstance(tmpfs, list) else []
+    mounted = {_mount_target(m) for _, m in r.items(kp + ("volumes",))
+               if isinstance(m, str) and m.count(":") >= 1 and m.split(":")[1].startswith("/")}
+    for i, entry in enumerate(entries):
+        target = entry.split(":", 1)[0].strip() if isinstance(entry, str) else ""
+        if target.startswith("/") and normal_path(target) in mounted:
+            r.error(kp + ("compose", "tmpfs") + ((i,) if isinstance(tmpfs, list) else ()),
+                    f"{target} is also a target of `volumes`: one container path takes one mount; change one")
 
 
 def _deps(r: Reader, service: str) -> list[tuple[int, str]]:

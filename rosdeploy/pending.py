@@ -24,9 +24,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Iterable, Mapping
 
+from rosdeploy import yamlsrc
+from rosdeploy.errors import InputError
 from rosdeploy.results import BUSY, UNREACHABLE, WAITING_WINDOW, HostResult
 
 PENDING_OUTCOMES = frozenset({UNREACHABLE, BUSY, WAITING_WINDOW})
+MAX_RECORD = 16 << 20     # bytes: a record of 20,000 robots is ~4 MB
 
 
 @dataclass(frozen=True)
@@ -62,11 +65,13 @@ def read(fleet_path: str) -> tuple[dict[str, Entry], str | None]:
     writes (edited, truncated, another tool's): such a record counts as none, and the next
     apply writes a good one over it."""
     path = record_path(fleet_path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
+    if not path.exists():
         return {}, None
-    except (OSError, ValueError) as exc:
+    try:   # bounded, regular files only: a fifo there would hang status
+        data = json.loads(yamlsrc.read_bytes(str(path), MAX_RECORD, "a pending record").decode("utf-8"))
+    except InputError as exc:
+        return {}, f"{path}: {exc.problems[0].message}; ignored"
+    except ValueError as exc:
         return {}, f"{path}: unreadable ({exc}); ignored"
     entries = _entries(data)
     if entries is None:

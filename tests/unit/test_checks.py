@@ -155,6 +155,15 @@ def test_gpu_unavailable() -> None:
         "devices": [{"driver": "nvidia", "count": 1, "capabilities": ["gpu"]}]}}})
 
 
+def test_host_changes_no_root() -> None:
+    sudo_to_nobody = host(user="robot", vars={"ansible_become_user": "nobody"})
+    found = fires("host-changes-no-root", hosts=[sudo_to_nobody])
+    assert "ansible_become_user is 'nobody': host changes need root" in found.message
+    silent("host-changes-no-root", hosts=[host(user="root", vars={"ansible_become": False})])
+    silent("host-changes-no-root", hosts=[host(user="robot")])                 # sudo -n, as apply does
+    silent("host-changes-no-root", hosts=[sudo_to_nobody], fleet=replace(spec(), log_rotate_every=None))
+
+
 # --------------------------------------------------------- a robot's release
 
 def test_compose_invalid() -> None:

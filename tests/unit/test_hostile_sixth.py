@@ -337,3 +337,59 @@ def test_addresses_and_ssh_aliases_pass(capsys: pytest.CaptureFixture, lab: Path
     set_hosts(lab, "ansible_host: 127.0.0.1", f"ansible_host: {yaml.safe_dump(value).splitlines()[0]}")
     code, text = cli(capsys, lab, "validate")
     assert code == 0, text
+
+
+# ------------------------------------------------------------------ compose: beside what rosdeploy renders
+
+COMPOSE_REFUSED = [
+    ({"cpu_quota": 50000}, "compose.cpu_quota: Docker refuses cpu_quota beside `resources.cpus`"),
+    ({"cpu_period": 100000}, "compose.cpu_period: Docker refuses cpu_period beside `resources.cpus`"),
+    ({"mem_reservation": "1g"}, "compose.mem_reservation: above `resources.memory`"),
+    ({"memswap_limit": "10m"}, "compose.memswap_limit: below `resources.memory`"),
+    ({"sysctls": {"net.ipv4.ip_forward": 1}}, "compose.sysctls.net.ipv4.ip_forward: Docker refuses "
+                                              "net.ipv4.ip_forward in the host's network namespace"),
+    ({"sysctls": ["kernel.core_pattern=|/bin/sh"]}, "compose.sysctls[0]: kernel.core_pattern is not a namespaced"),
+    ({"tmpfs": ["/calib"]}, "compose.tmpfs[0]: /calib is also a target of `volumes`"),
+    ({"links": ["other"]}, "compose.links[0]: no service is named `other`"),
+    ({"working_dir": "relative"}, "compose.working_dir: must be an absolute path"),
+    ({"dns": ["not an ip"]}, "compose.dns[0]: 'not an ip' is not an IP address"),
+    ({"isolation": "hyperv"}, "compose.isolation: only `default` exists on Linux"),
+    ({"pid": "HOST"}, "compose.pid: 'HOST' is none of host, container:NAME, service:NAME"),
+    ({"stop_signal": "SIGFOO"}, "compose.stop_signal: 'SIGFOO' is no signal"),
+    ({"ulimits": {"nofilez": 10}}, "compose.ulimits.nofilez: no ulimit is named 'nofilez': did you mean `nofile`?"),
+    ({"ulimits": {"nofile": {"soft": 10, "hard": 5}}}, "compose.ulimits.nofile: soft is above hard"),
+]
+
+
+@pytest.mark.parametrize("compose, expect", COMPOSE_REFUSED, ids=[next(iter(c)) + str(i)
+                                                                  for i, (c, _) in enumerate(COMPOSE_REFUSED)])
+def test_compose_keys_docker_refuses_beside_what_rosdeploy_renders_are_refused(
+        capsys: pytest.CaptureFixture, lab: Path, compose: dict, expect: str) -> None:
+    # each passed the Compose schema and validate, check and render; the robot's Docker refused it
+    def add(d: dict) -> None:
+        d["services"]["driver"]["volumes"] = ["/opt/calib:/calib:ro"]
+        d["services"]["driver"]["compose"] = compose
+    edit(lab, add)
+    refused_everywhere(capsys, lab, "services.driver." + expect)
+
+
+def test_compose_keys_docker_takes_pass(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    def add(d: dict) -> None:
+        d["services"]["driver"]["compose"] = {
+            "mem_reservation": "128m", "memswap_limit": "512m", "sysctls": {"kernel.shm_rmid_forced": 1},
+            "working_dir": "/ws", "dns": ["10.0.0.1", "fd00::1"], "stop_signal": "SIGINT",
+            "ulimits": {"nofile": {"soft": 1024, "hard": 4096}, "rtprio": 99}, "links": ["bridge"]}
+    edit(lab, add)
+    code, text = cli(capsys, lab, "validate")
+    assert code == 0, text
+
+
+@pytest.mark.parametrize("var, value", [("ansible_become_method", "su"), ("ansible_become_user", "nobody"),
+                                        ("ansible_become", False)])
+def test_become_settings_every_deploy_refuses_are_said_by_validate(capsys: pytest.CaptureFixture, lab: Path,
+                                                                   var: str, value: object) -> None:
+    # validate and check said nothing; every apply to the robot then failed at its host changes
+    add_host_vars(lab, "r1", f"ansible_user: robot\n{var}: {yaml.safe_dump(value).split()[0]}\n")
+    for command in ("validate", "check"):
+        code, text = cli(capsys, lab, command)
+        assert code == 0 and "r1.yml:" in text and f"{var}: robot 'r1' gets udev rules or log rotation" in text, text

@@ -227,6 +227,17 @@ def test_a_pending_record_rosdeploy_did_not_write_is_ignored_with_a_warning(
     assert rows[0].pending is None
 
 
+def test_a_fifo_where_the_pending_record_belongs_is_ignored_not_waited_on(tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    # status hung on it until killed
+    import os
+    monkeypatch.setenv("ROSDEPLOY_PENDING_DIR", str(tmp_path))
+    fleet = str(tmp_path / "fleet.yml")
+    os.mkfifo(pending.record_path(fleet))
+    entries, problem = pending.read(fleet)
+    assert entries == {} and problem and "not a regular file" in problem and "ignored" in problem
+
+
 def test_a_good_pending_record_is_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("ROSDEPLOY_PENDING_DIR", str(tmp_path))
     fleet = str(tmp_path / "fleet.yml")
