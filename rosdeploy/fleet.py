@@ -55,7 +55,6 @@ _DOMAIN = (r"(?:localhost|[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
 REGISTRY_RE = re.compile(rf"{_DOMAIN}(?:/{_COMPONENT})*")
 REPOSITORY_RE = re.compile(rf"{_COMPONENT}(?:/{_COMPONENT})*")
-CONTROLLER_REGISTRY_RE = re.compile(_DOMAIN)
 # Docker's reference grammar (distribution/reference NameTotalLengthMax): the whole repository
 # name, registry host included, is at most 255 characters; the tag's 128 is in TAG_RE.
 MAX_IMAGE_NAME = 255
@@ -567,10 +566,10 @@ def _rate(r: Reader, kp: KeyPath, value: Any) -> Any:
 def _controller_registry(r: Reader, kp: KeyPath, value: Any) -> Any:
     value = _string()(r, kp, value)
     scheme, sep, address = value.rpartition("://")
-    # host[:port] only: the robots pull `<address>/<image>`, and the controller pushes there too
-    if (sep and scheme not in ("http", "https")) or not CONTROLLER_REGISTRY_RE.fullmatch(address):
-        raise Invalid(f"{shown(value)} is not a registry address: write host[:port] without a path, optionally "
-                      "after http:// or https://, e.g. http://127.0.0.1:5000")
+    # a path is the registry's, as `registry: host/acme` has one: the repository comes from the image
+    if (sep and scheme not in ("http", "https")) or not REGISTRY_RE.fullmatch(address):
+        raise Invalid(f"{shown(value)} is not a registry address: write host[:port], optionally after "
+                      "http:// or https://, e.g. http://127.0.0.1:5000")
     _check_port(address)
     return value
 
@@ -1109,24 +1108,17 @@ def _check_services(r: Reader, top: dict) -> None:
 
 
 # health keys that count from the switch, as `timeout` does, and what each is
-_GATE_WAITS = {"stable": "a stable window", "topic_window": "the ROS probe's listening",
-               "topics_within": "the wait for a topic's publisher"}
-
-
 def _check_gate_can_pass(r: Reader, health: dict) -> None:
-    """`stable`, `topic_window` and `topics_within` count from the switch, as `timeout` does: one as
-    long as the whole gate fails every deploy, and rolls it back."""
-    timeout = health.get("timeout", HealthPolicy.timeout)
-    for key, what in _GATE_WAITS.items():
-        if key != "stable" and key not in health:   # their defaults only bound what the gate waits for
-            continue
-        wait = health.get(key, getattr(HealthPolicy, key))
-        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (wait, timeout))
-        if numbers and wait >= timeout:
-            r.error(("health", key if key in health else "timeout"),
-                    f"health.{key} ({wait:g} s) is not shorter than health.timeout ({timeout:g} s), which counts "
-                    f"from the switch too: no release could pass the gate ({what} would outlast it); make "
-                    f"{key} shorter than timeout")
+    """`stable` and `timeout` both count from the switch: a stable window as long as the whole gate
+    fails every deploy, and rolls it back. (`topics_within` and `topic_window` are bounds, not
+    waits: a topic that appears, or proves its rate, early ends them; at or past `timeout` they
+    only turn the early failure off.)"""
+    stable, timeout = (health.get(k, getattr(HealthPolicy, k)) for k in ("stable", "timeout"))
+    numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (stable, timeout))
+    if numbers and stable >= timeout:
+        r.error(("health", "stable" if "stable" in health else "timeout"),
+                f"health.stable ({stable:g} s) is not shorter than health.timeout ({timeout:g} s), which counts "
+                "from the switch too: no release could pass the gate; make stable shorter than timeout")
 
 
 def _check_service(r: Reader, kp: KeyPath, svc: dict, names: list[str], registry: Any) -> None:
@@ -1145,15 +1137,19 @@ def _check_service(r: Reader, kp: KeyPath, svc: dict, names: list[str], registry
         _check_compose_conflicts(r, kp, svc, names)
 
 
-# Sysctls a container may set with its own network namespace (net.*) or IPC namespace; the rest
-# are the robot's kernel's, which runc refuses to touch from a container.
-_NAMESPACED_SYSCTLS = ("net.", "kernel.shm", "kernel.msg", "kernel.sem", "fs.mqueue.")
+# Sysctls a container may set in its own IPC, network or UTS namespace (runc's validator); the
+# rest are the robot's kernel's, which runc refuses to touch from a container. Host networking
+# shares the host's network and UTS namespaces.
+_IPC_SYSCTLS = ("kernel.shm", "kernel.msg", "kernel.sem", "fs.mqueue.")
+_HOST_NET_SYSCTLS = ("net.", "kernel.domainname", "kernel.hostname")
 
 
 def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]) -> None:
     """`compose:` keys Docker or Compose refuse beside what rosdeploy renders: each passes the
     schema alone, and the deploy would fail at the robot (`check` is where to learn it)."""
     extra, where = svc["compose"], kp + ("compose",)
+    if svc.get("compose_interpolate") is True:     # `${VAR}` is the robot's to fill in: judge the rest
+        extra = _literal(extra)
     written = svc.get("resources")
     resources: dict = written if isinstance(written, dict) else {}
     for key in ("cpu_quota", "cpu_period"):
@@ -1170,13 +1166,16 @@ def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]
                                             "memory (Docker refuses it); raise it, or -1 for unlimited swap")
     host_net = r.raw(("ros", "network_mode")) in (None, "host")
     for at, name in _sysctl_names(extra.get("sysctls")):
-        if not name.startswith(_NAMESPACED_SYSCTLS):
+        if not name.startswith(_IPC_SYSCTLS + _HOST_NET_SYSCTLS):
             r.error(where + ("sysctls", at), f"{name} is not a namespaced sysctl: runc refuses to set the robot's "
                                              "kernel from a container; set it on the robot")
-        elif name.startswith("net.") and host_net:
-            r.error(where + ("sysctls", at), f"Docker refuses {name} in the host's network namespace "
-                                             "(`ros.network_mode: host`): net.* sysctls need the container's own; "
+        elif name.startswith(_HOST_NET_SYSCTLS) and host_net:
+            r.error(where + ("sysctls", at), f"Docker refuses {name} in the host's namespaces "
+                                             "(`ros.network_mode: host`): it needs the container's own; "
                                              "set it on the robot")
+        elif name.startswith(_IPC_SYSCTLS) and extra.get("ipc") == "host":
+            r.error(where + ("sysctls", at), f"Docker refuses {name} with `ipc: host`: it needs the container's "
+                                             "own IPC namespace")
     _check_tmpfs_at_volumes(r, kp, extra.get("tmpfs"))
     _check_compose_values(r, where, extra)
     links = extra.get("links")
@@ -1186,16 +1185,33 @@ def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]
             r.error(where + ("links", i), f"no service is named `{target}`{_did_you_mean(target, names)}")
 
 
-# What Docker takes on Linux where the Compose schema allows any string
+# What Docker takes on Linux where the Compose schema allows any string (go-units' ulimits, with
+# `as` disabled there; moby's signal map, aliases and real-time signals included)
 _ULIMITS = frozenset({"core", "cpu", "data", "fsize", "locks", "memlock", "msgqueue", "nice", "nofile", "nproc",
-                      "rss", "rtprio", "rttime", "sigpending", "stack", "as"})
+                      "rss", "rtprio", "rttime", "sigpending", "stack"})
 _SHARED_NS = re.compile(r"host|container:.+|service:.+")
+_SIGNALS = frozenset("ABRT ALRM BUS CHLD CLD CONT FPE HUP ILL INT IO IOT KILL PIPE POLL PROF PWR QUIT SEGV STKFLT "
+                     "STOP SYS TERM TRAP TSTP TTIN TTOU UNUSED URG USR1 USR2 VTALRM WINCH XCPU XFSZ".split())
+_RT_SIGNAL = re.compile(r"RTMIN(\+(?:[1-9]|1[0-5]))?|RTMAX(-(?:[1-9]|1[0-4]))?")
+
+
+def _literal(value: Any) -> Any:
+    """`value` without the strings that hold a `$` (Compose interpolates them on the robot)."""
+    if isinstance(value, dict):
+        return {k: _literal(v) for k, v in value.items() if not (isinstance(v, str) and "$" in v)}
+    if isinstance(value, list):
+        return [_literal(v) for v in value if not (isinstance(v, str) and "$" in v)]
+    return value
+
+
+def _is_signal(text: str) -> bool:
+    name = text.upper().removeprefix("SIG")
+    return text.isdigit() or name in _SIGNALS or bool(_RT_SIGNAL.fullmatch(name))
 
 
 def _check_compose_values(r: Reader, where: KeyPath, extra: dict) -> None:
     """Values the Compose schema lets through and Docker refuses at the robot."""
     import ipaddress
-    import signal
     if isinstance(extra.get("working_dir"), str) and not extra["working_dir"].startswith("/"):
         r.error(where + ("working_dir",), "must be an absolute path in the container (Docker refuses a relative one)")
     for i, server in enumerate(extra["dns"] if isinstance(extra.get("dns"), list) else []):
@@ -1203,26 +1219,31 @@ def _check_compose_values(r: Reader, where: KeyPath, extra: dict) -> None:
             ipaddress.ip_address(str(server))
         except ValueError:
             r.error(where + ("dns", i), f"{shown(server)} is not an IP address: Docker takes DNS servers by address")
-    if extra.get("isolation") not in (None, "default"):
+    isolation = extra.get("isolation")
+    if isinstance(isolation, str) and isolation.lower() not in ("", "default"):
         r.error(where + ("isolation",), "only `default` exists on Linux (hyperv and process are Windows'): remove it")
-    for key in ("pid", "userns_mode", "ipc", "uts"):
+    for key in ("pid", "userns_mode"):
         value = extra.get(key)
-        if isinstance(value, str) and key != "ipc" and not _SHARED_NS.fullmatch(value):
+        if isinstance(value, str) and not _SHARED_NS.fullmatch(value):
             r.error(where + (key,), f"{shown(value)} is none of host, container:NAME, service:NAME (Docker's "
                                     "names are lower case)")
     stop = extra.get("stop_signal")
-    if isinstance(stop, str) and not stop.isdigit() and stop.upper().removeprefix("SIG") not in \
-            {s.name[3:] for s in signal.Signals}:
+    if isinstance(stop, str) and not _is_signal(stop):
         r.error(where + ("stop_signal",), f"{shown(stop)} is no signal: e.g. SIGINT (what ros2 launch handles)")
     limits = extra.get("ulimits")
     for name, limit in (limits.items() if isinstance(limits, dict) else []):
         if name not in _ULIMITS:
             close = suggest(str(name), sorted(_ULIMITS))
-            r.error(where + ("ulimits", name), f"no ulimit is named {shown(name)}: "
-                                               + (f"did you mean `{close[0]}`?" if close else "see ulimit -a"))
-        elif isinstance(limit, dict) and all(isinstance(limit.get(k), int) for k in ("soft", "hard")) \
-                and limit["soft"] > limit["hard"]:
-            r.error(where + ("ulimits", name), "soft is above hard: Docker refuses it")
+            r.error(where + ("ulimits", name), f"no ulimit Docker sets is named {shown(name)}"
+                                               + (f": did you mean `{close[0]}`?" if close else ""))
+        elif isinstance(limit, dict) and all(isinstance(limit.get(k), int) for k in ("soft", "hard")):
+            _check_ulimit(r, where + ("ulimits", name), limit["soft"], limit["hard"])
+
+
+def _check_ulimit(r: Reader, kp: KeyPath, soft: int, hard: int) -> None:
+    """-1 is unlimited (go-units' ParseUlimit): a soft limit may not pass its hard one."""
+    if hard != -1 and (soft == -1 or soft > hard):
+        r.error(kp, "soft is above hard: Docker refuses it (-1 is unlimited)")
 
 
 def _sysctl_names(sysctls: Any) -> list[tuple[str | int, str]]:

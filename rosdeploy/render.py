@@ -119,8 +119,8 @@ TUNABLES: dict[str, tuple[Any, Any, str]] = {
     "dds_initial_announcement_period_ms": (200, _int_between(1), f"whole milliseconds from 1 to {MAX_TUNABLE}"),
     "dds_socket_buffer": ("10MB", _size_within(_SOCKET_BUFFER_RE, 1, MAX_SOCKET_BUFFER),
                           "a size like 10MB or 8MiB, below 2GiB (a socket buffer size is an int)"),
-    "logrotate_size": ("50M", _size_within(_LOGROTATE_SIZE_RE, 1, 1 << 40),
-                       "a size above 0 and at most 1024G, like 50M"),
+    "logrotate_size": ("50M", _size_within(_LOGROTATE_SIZE_RE, 0, 1 << 40),
+                       "a size of at most 1024G, like 50M (0 rotates any file that is not empty)"),
     "logrotate_keep": (5, _int_between(0), f"a number of rotated files from 0 to {MAX_TUNABLE}"),
 }
 
@@ -723,12 +723,15 @@ class Renderer:
         for peer in [*own, *extra]:
             seen.setdefault(peer, None)
         ipv6 = [p for p in seen if _is_ipv6(p)]
-        if self.spec.rmw == "cyclonedds" and ipv6 and len(ipv6) < len(seen):
+        # a host name resolves to what the transport asks for; a service name on a Docker bridge
+        # (`own`) to the bridge's IPv4 address
+        ipv4 = [p for p in seen if _is_ipv4(p) or p in own]
+        if self.spec.rmw == "cyclonedds" and ipv6 and ipv4:
             # CycloneDDS runs one transport per domain, udp (IPv4) or udp6: it cannot reach both kinds
             problems.append(self._var_problem(host, "dds_peers", (
                 f"{', '.join(repr(p) for p in ipv6[:5])}: CycloneDDS talks either IPv4 or IPv6 in a domain, and "
-                f"the other peers ({', '.join(repr(p) for p in seen if p not in ipv6)[:200]}) are IPv4 or host "
-                "names: list every peer by its IPv4 address, or every one by its IPv6 address on host networking")))
+                f"{', '.join(repr(p) for p in ipv4[:5])} are IPv4: list every peer by its IPv4 address, or every "
+                "one by its IPv6 address (or host name) on host networking")))
             return ()
         return tuple(seen)
 
@@ -770,8 +773,9 @@ class Renderer:
             out[name] = value
         lease, announce = out["dds_lease_duration"], out["dds_lease_announcement"]
         both = all(TUNABLES[n][1](out[n]) for n in ("dds_lease_duration", "dds_lease_announcement"))
-        if both and announce >= lease:
-            problems.append(self._var_problem(host, "dds_lease_announcement", (
+        if self.spec.rmw == "fastdds" and both and announce >= lease:    # CycloneDDS's profile renders neither
+            given = "dds_lease_announcement" if "dds_lease_announcement" in variables else "dds_lease_duration"
+            problems.append(self._var_problem(host, given, (
                 f"dds_lease_announcement ({announce} s) must be shorter than dds_lease_duration ({lease} s): the "
                 "peers would drop this robot between two announcements (Fast DDS refuses it); make it about a "
                 "third of the lease")))
@@ -843,6 +847,13 @@ def _is_peer_address(peer: str) -> bool:
         return True
     except ValueError:     # digits and dots only are meant as IPv4 (`256.1.1.1`), not as a name
         return not re.fullmatch(r"[0-9.]+", peer) and bool(_HOSTNAME.fullmatch(peer))
+
+
+def _is_ipv4(peer: str) -> bool:
+    try:
+        return isinstance(ipaddress.ip_address(peer), ipaddress.IPv4Address)
+    except ValueError:
+        return False
 
 
 def _is_ipv6(peer: str) -> bool:
