@@ -338,22 +338,34 @@ def usable_socket_path() -> Path:
     return path
 
 
+ASK_TIMEOUT = 10.0        # seconds a running keeper has to answer `connections`
+
+
 def ask(message: dict) -> dict | None:
     """One request to a running keeper (`rosdeploy connections`); None when none runs."""
+    return ask_why(message)[0]
+
+
+def ask_why(message: dict) -> tuple[dict | None, str | None]:
+    """The keeper's answer, or None and why there is none when its socket took the call but gave
+    no answer (a hung keeper, or another process holding the path); (None, None): none runs."""
     try:
         path = usable_socket_path()
     except KeeperUnavailable:
-        return None
+        return None, None
     sock = _try_dial(path)
     if sock is None:
-        return None
+        return None, None
     with sock:
-        sock.settimeout(10)
+        sock.settimeout(ASK_TIMEOUT)
         try:
             send(sock, message)
-            return receive(sock)
+            return receive(sock), None
+        except socket.timeout:
+            return None, (f"a process holds its socket {path} but did not answer within {ASK_TIMEOUT:g} s: "
+                          f"stop it, or remove the socket")
         except (OSError, ValueError):
-            return None     # it was stopping as we asked
+            return None, None     # it was stopping as we asked
 
 
 # ------------------------------------------------------------------ keeper

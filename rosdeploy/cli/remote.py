@@ -373,6 +373,7 @@ def cmd_connections(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy import keeper
     from rosdeploy.cli import report
 
-    reply = keeper.ask({"op": "exit" if args.close else "list"})
-    report.connections(out, reply, closed=args.close, unavailable=keeper.unavailable() if reply is None else None)
+    reply, silent = keeper.ask_why({"op": "exit" if args.close else "list"})
+    why = (silent or keeper.unavailable()) if reply is None else None
+    report.connections(out, reply, closed=args.close, unavailable=why)
     return EXIT_OK

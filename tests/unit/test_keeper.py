@@ -418,3 +418,21 @@ def test_a_socket_path_too_long_starts_no_keeper(tmp_path: Path, monkeypatch: py
     monkeypatch.setattr(keeper, "_spawn", lambda path, persist: pytest.fail("a keeper was started"))
     with pytest.raises(keeper.KeeperUnavailable, match="longer than a unix socket allows"):
         keeper.dial(5)
+
+
+def test_connections_says_when_the_keepers_socket_takes_the_call_and_never_answers(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
+    # it waited 10 s, then said no keeper was running
+    from rosdeploy.cli import main
+    monkeypatch.setenv("ROSDEPLOY_CONTROL_DIR", str(tmp_path / "cp"))
+    monkeypatch.setattr(keeper, "ASK_TIMEOUT", 0.5)
+    path = keeper.usable_socket_path()
+    silent = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    silent.bind(str(path))
+    silent.listen(1)
+    try:
+        assert main(["connections"]) == 0
+    finally:
+        silent.close()
+    text = capsys.readouterr().out
+    assert f"no connection keeper can run: a process holds its socket {path} but did not answer" in text, text
