@@ -13,6 +13,7 @@ syntax of the file it lands in.
 """
 from __future__ import annotations
 
+import functools
 import ipaddress
 import json
 import re
@@ -850,18 +851,21 @@ def _is_peer_address(peer: str) -> bool:
 
 
 def _is_ipv4(peer: str) -> bool:
-    try:
-        return isinstance(ipaddress.ip_address(peer), ipaddress.IPv4Address)
-    except ValueError:
-        return False
+    return _ip_version(peer) == 4
 
 
 def _is_ipv6(peer: str) -> bool:
     """An IPv6 address (a zone like `%eth0` included): a locator of its own kind, udpv6 or udp6."""
+    return _ip_version(peer) == 6
+
+
+@functools.lru_cache(maxsize=4096)
+def _ip_version(peer: str) -> int:
+    """4 or 6 for an IP address, 0 for a name: cached, as every robot's peers are read per robot."""
     try:
-        return isinstance(ipaddress.ip_address(peer), ipaddress.IPv6Address)
+        return ipaddress.ip_address(peer).version
     except ValueError:
-        return False
+        return 0
 
 
 def _searched(host: Host) -> list[str]:
