@@ -580,20 +580,29 @@ def _recover(run: RobotRun, release: RenderedRelease, state: RobotState, verdict
     failed = {"failed_service": verdict.service, "logs": logs, **base}
     if not run.spec.rollback.auto:
         return run.result(FAILED, running_release=new, reason=why + " (rollback.auto is off: left running)", **failed)
-    if old is None or old not in state.releases:
-        with run.step("stop failed release"):
-            run.t.run(commands.down(run.root, run.spec.project, new, state.flavor or "v2"))
+    back = _back_to(run, state, new, state.flavor or "v2", verdict.reason)
+    if back is None:
         return run.result(STOPPED, running_release=None,
                           reason=why + "; no previous release on the robot, so the failed one was stopped", **failed)
-    back = run.start(old, state.flavor or "v2", together=True, services=run.kept_services(old))
-    _host_changes(run, old)   # after the switch: going back must not wait for a round trip more
-    run.history({"event": "auto-rollback", "release": old, "rolled_back_from": new,
-                 "result": "active" if back.ok else "unhealthy", "reason": verdict.reason,
-                 "compose": state.flavor or "v2"})
     if back.ok:
         return run.result(ROLLED_BACK, running_release=old, reason=why + f"; rolled back to {old}", **failed)
     return run.result(FAILED, running_release=old, reason=why + f"; rollback to {old} is unhealthy too: "
                       + back.reason, **failed)
+
+
+def _back_to(run: RobotRun, state: RobotState, failed: str, flavor: str, reason: str) -> Verdict | None:
+    """Start the release the run left (`current`) again, the brake's way, after `failed` failed its
+    gate, and record it; None when there is none to go back to: `failed` is stopped instead."""
+    left = state.current
+    if left is None or left not in state.releases:
+        with run.step("stop failed release"):
+            run.t.run(commands.down(run.root, run.spec.project, failed, flavor))
+        return None
+    back = run.start(left, flavor, together=True, services=run.kept_services(left))
+    _host_changes(run, left)   # after the switch: going back must not wait for a round trip more
+    run.history({"event": "auto-rollback", "release": left, "rolled_back_from": failed,
+                 "result": "active" if back.ok else "unhealthy", "reason": reason, "compose": flavor})
+    return back
 
 
 def _rollback_refused(run: RobotRun, state: RobotState, target: str, flavor: str, verdict: Verdict,
@@ -602,18 +611,13 @@ def _rollback_refused(run: RobotRun, state: RobotState, target: str, flavor: str
     activated; the release the rollback left starts again, as the guard does for it."""
     why = f"{target} never passed its gate on this robot and failed it now: {verdict.reason}"
     logs = run.logs_of(verdict) if verdict.containers else {}
-    left = state.current
-    run.history({"event": "rollback", "release": target, "from": left, "result": "failed",
+    run.history({"event": "rollback", "release": target, "from": state.current, "result": "failed",
                  "reason": verdict.reason, "compose": flavor})
-    if left is None or left not in state.releases:
-        with run.step("stop failed release"):
-            run.t.run(commands.down(run.root, run.spec.project, target, flavor))
+    back = _back_to(run, state, target, flavor, verdict.reason)
+    if back is None:
         return run.result(FAILED, reason=why + "; no activated release to go back to, so it was stopped",
                           failed_service=verdict.service, logs=logs, **{**base, "running_release": None})
-    back = run.start(left, flavor, together=True, services=run.kept_services(left))
-    run.history({"event": "auto-rollback", "release": left, "rolled_back_from": target,
-                 "result": "active" if back.ok else "unhealthy", "reason": verdict.reason, "compose": flavor})
-    again = f"back on {left}" if back.ok else f"{left} started again but is unhealthy: {back.reason}"
+    again = f"back on {state.current}" if back.ok else f"{state.current} started again but is unhealthy: {back.reason}"
     return run.result(FAILED, reason=f"{why}; {again}", failed_service=verdict.service, logs=logs, **base)
 
 
