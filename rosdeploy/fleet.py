@@ -894,14 +894,21 @@ def _compose_passthrough(r: Reader, kp: KeyPath, value: Any) -> Any:
     return value
 
 
+def _tmpfs_targets(tmpfs: Any) -> list[tuple[KeyPath, str]]:
+    """(key path below `tmpfs`, container path) of each entry: `tmpfs` is a string or a list."""
+    if isinstance(tmpfs, str):
+        return [((), tmpfs.split(":", 1)[0].strip())]
+    if not isinstance(tmpfs, list):
+        return []
+    return [((i,), e.split(":", 1)[0].strip() if isinstance(e, str) else "") for i, e in enumerate(tmpfs)]
+
+
 def _compose_tmpfs(r: Reader, kp: KeyPath, tmpfs: Any) -> None:
     """`tmpfs: [/dev/shm]` would hide rosdeploy's own mounts (the DDS shared memory, logs, profile)."""
-    entries = [tmpfs] if isinstance(tmpfs, str) else tmpfs if isinstance(tmpfs, list) else []
-    for i, entry in enumerate(entries):
-        target = entry.split(":", 1)[0].strip() if isinstance(entry, str) else ""
+    for where, target in _tmpfs_targets(tmpfs):
         taken = managed_mount(target) if target.startswith("/") else None
         if taken:
-            r.error(kp + ((i,) if isinstance(tmpfs, list) else ()),
+            r.error(kp + where,
                     f"{target} is where rosdeploy mounts {taken} itself: a tmpfs there would replace it; "
                     "choose another container path")
 
@@ -1264,13 +1271,11 @@ def _bytes_or_none(value: Any) -> int | None:
 
 def _check_tmpfs_at_volumes(r: Reader, kp: KeyPath, tmpfs: Any) -> None:
     """A tmpfs where a bind mount of the service goes: compose refuses the duplicate mount point."""
-    entries = [tmpfs] if isinstance(tmpfs, str) else tmpfs if isinstance(tmpfs, list) else []
     mounted = {_mount_target(m) for _, m in r.items(kp + ("volumes",))
                if isinstance(m, str) and m.count(":") >= 1 and m.split(":")[1].startswith("/")}
-    for i, entry in enumerate(entries):
-        target = entry.split(":", 1)[0].strip() if isinstance(entry, str) else ""
+    for where, target in _tmpfs_targets(tmpfs):
         if target.startswith("/") and normal_path(target) in mounted:
-            r.error(kp + ("compose", "tmpfs") + ((i,) if isinstance(tmpfs, list) else ()),
+            r.error(kp + ("compose", "tmpfs") + where,
                     f"{target} is also a target of `volumes`: one container path takes one mount; change one")
 
 

@@ -370,13 +370,6 @@ class KnownHosts:
                                                                self.entries[i][0])]
         return [self.entries[i][1] for i in sorted([*self.plain.get(name, ()), *found])]
 
-    def for_name(self, name: str) -> paramiko.HostKeys:
-        """The keys of `name` as paramiko's HostKeys would hold them (the last of a key type wins)."""
-        out = paramiko.HostKeys()
-        for key in self.keys_for(name):
-            out.add(name, key.get_name(), key)
-        return out
-
 
 def _distinct(keys: Iterable[paramiko.PKey]) -> list[paramiko.PKey]:
     """The keys without repeats: the same line in two files is one key."""

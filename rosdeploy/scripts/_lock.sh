@@ -19,7 +19,7 @@ take_lock() {
     printf '%s\n' "$owner" > "$dir/.lock/owner"
     echo locked
   elif [ -d "$dir/.lock" ]; then
-    printf 'held '; cat "$dir/.lock/owner" 2>/dev/null || echo '{}'
+    printf 'held '; head -c 4096 "$dir/.lock/owner" 2>/dev/null || echo '{}'
     return 3
   else
     echo "cannot create the lock $dir/.lock: check the deploy root's owner and permissions" >&2

@@ -11,7 +11,7 @@ section home; printf '%s\n' "$HOME"
 section dir; printf '%s\n' "$dir"
 section current; readlink "$dir/current" 2>/dev/null || true
 section manifest; show "$dir/current/manifest.json"
-section lock; show "$dir/.lock/owner"
+section lock; show_head "$dir/.lock/owner" 4096
 # held with no readable owner (a controller killed between its mkdir and the owner's write)
 section lockdir; if [ -d "$dir/.lock" ]; then echo yes; fi
 kept=

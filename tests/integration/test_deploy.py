@@ -194,12 +194,18 @@ def test_changed_host_key_is_refused(fleet, fleet_file: Path) -> None:
 
 
 def test_locked_robot_is_not_deployed_twice(fleet, fleet_file: Path) -> None:
+    # the owner record padded to 70 MB on its line: status and apply read a bounded head of
+    # it (read whole, status took 45 s and overflowed its output, so --break-lock never ran)
     simulator.robot_exec("robot1", ["su", "robot", "-c",
-                                    "mkdir -p ~/rosdeploy/demo/.lock && echo '{\"by\": \"alice@ops\"}' "
+                                    "mkdir -p ~/rosdeploy/demo/.lock && { printf '%s' '{\"by\": \"alice@ops\"}'; "
+                                    "head -c 70000000 /dev/zero | tr '\\0' ' '; echo; } "
                                     "> ~/rosdeploy/demo/.lock/owner"])
     run = deploy(fleet_file, "--limit", "robot1")
     assert run.host("robot1")["outcome"] == "locked" and "alice@ops" in run.host("robot1")["reason"]
     assert RobotShell(fleet, "robot1").containers() == {}
+    status = rosdeploy("--json", "status", fleet_file, "--limit", "robot1")
+    seen = status.doc["robots"][0]
+    assert seen["state"] == "LOCKED" and "alice@ops" in seen["reason"], seen
     broke = deploy(fleet_file, "--limit", "robot1", "--break-lock")
     assert broke.host("robot1")["outcome"] == "deployed"
 
