@@ -23,9 +23,10 @@ import yaml
 
 from rosdeploy import restarts
 from rosdeploy.errors import Problem, shown
-from rosdeploy.inventory.templating import secret_read, secret_reads
+from rosdeploy.inventory.templating import secret_read, secret_reads, unless_secret
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RobotFile
 from rosdeploy.sandbox import Layered, render_value, value_template
+from rosdeploy.vault import is_password_file
 from rosdeploy.yamlsrc import Doc
 
 FILES_DIR = "files"
@@ -111,12 +112,9 @@ class FileRenderer:
                 problems.append(self._problem(host, entry, f"inventory variable {shown(entry.source)} is undefined for "
                                                            "this robot: check its template in host_vars or group_vars"))
                 return None
-            return str(value) if isinstance(value, str) else yaml.dump(value, Dumper=_Dumper, sort_keys=True,
-                                                                        default_flow_style=False)
-        try:
-            rel = render_value(self.paths[entry.name], *layers)
-        except jinja2.TemplateError as exc:
-            problems.append(self._problem(host, entry, exc.message or str(exc)))
+            return str(value) if isinstance(value, str) else self._yaml(value, host, entry, problems)
+        rel = self._path(entry, host, layers, problems)
+        if rel is None:
             return None
         path = self._checked(rel, host, entry, problems)
         if path is None:
@@ -130,8 +128,36 @@ class FileRenderer:
         except jinja2.TemplateError as exc:
             lineno = getattr(exc, "lineno", None)
             line = f" line {lineno}" if lineno else ""
-            problems.append(self._problem(host, entry, f"{path}{line}: {exc.message or exc}"))
+            problems.append(self._problem(host, entry, f"{path}{line}: {unless_secret(exc.message or str(exc))}"))
             return None
+
+    def _yaml(self, value: Any, host: Host, entry: RobotFile, problems: list[Problem]) -> str | None:
+        """An inventory value as YAML; a value that is not plain data (`{{ range(3) }}`) is named by
+        its type only: the value may hold a secret."""
+        try:
+            return yaml.dump(value, Dumper=_Dumper, sort_keys=True, default_flow_style=False)
+        except (yaml.YAMLError, TypeError, ValueError, RecursionError) as exc:
+            odd = exc.args[1] if isinstance(exc, yaml.representer.RepresenterError) and len(exc.args) > 1 else None
+            kind = f"a {type(odd).__name__} object" if odd is not None else "a value"
+            problems.append(self._problem(host, entry, f"inventory variable {shown(entry.source)} holds {kind}, which "
+                                                       "YAML cannot write: make it text, numbers, lists and mappings"))
+            return None
+
+    def _path(self, entry: RobotFile, host: Host, layers: tuple[Mapping[str, Any], ...],
+              problems: list[Problem]) -> str | None:
+        """The source path rendered; refused if it reads a vault var: a path is no secret (messages
+        and plans show it), and whatever is computed from a secret must not be shown."""
+        with secret_reads() as read:
+            try:
+                rel = render_value(self.paths[entry.name], *layers)
+            except jinja2.TemplateError as exc:
+                problems.append(self._problem(host, entry, unless_secret(exc.message or str(exc))))
+                return None
+        if read:
+            problems.append(self._problem(host, entry, f"the path reads {secret_read(*min(read.items()))}: a path "
+                                                       "is not secret, name the file without vault vars"))
+            return None
+        return rel
 
     def _checked(self, rel: str, host: Host, entry: RobotFile, problems: list[Problem]) -> Path | None:
         """The source file, only if it is inside the fleet file's folder (links resolved)."""
@@ -160,6 +186,10 @@ class FileRenderer:
         if not inside:
             problems.append(self._problem(host, entry, f"{rel} leads out of {self.base} (a symbolic link?): "
                                                        "keep the file in the fleet repo"))
+            return None
+        if regular and is_password_file(path):   # its text unlocks every vault; release files are world-readable
+            problems.append(self._problem(host, entry, f"{rel} is a vault password file: it never goes into a "
+                                                       "release; name another file"))
             return None
         if found and not regular:
             problems.append(self._problem(host, entry, f"{self.base / rel} is not a regular file (a folder, fifo "

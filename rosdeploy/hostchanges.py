@@ -58,20 +58,34 @@ class Become:
 
 def become(host: Host, asked_password: str | None = None) -> Become:
     v: Mapping[str, Any] = host.vars
-    user = host.user or str(v.get("ansible_user") or "")
+    named, secret = _read(v, "ansible_user")
+    user = host.user or str(named or "")
     if user == "root":
         return Become("direct")
     if str(v.get("ansible_become", "true")).lower() in ("false", "no", "0"):
-        return Become("", refused=f"ansible_become is false for {user or 'the SSH user'}, who is not root: set "
+        who = "the SSH user" if secret or not user else user
+        return Become("", refused=f"ansible_become is false for {who}, who is not root: set "
                                   "ansible_become: true (and grant sudo), connect as root, or pass --no-host-changes")
-    target = str(v.get("ansible_become_user") or "root")
-    if target != "root":
-        return Become("", refused=f"ansible_become_user is {shown(target)}: host changes need root")
-    method = str(v.get("ansible_become_method") or "sudo")
-    if method != "sudo":
-        return Become("", refused=f"ansible_become_method {shown(method)} is not supported: use sudo")
+    target, secret = _read(v, "ansible_become_user")
+    if str(target or "root") != "root":
+        return Become("", refused=f"ansible_become_user is {_quoted(str(target), secret)}: host changes need root")
+    method, secret = _read(v, "ansible_become_method")
+    if str(method or "sudo") != "sudo":
+        return Become("", refused=f"ansible_become_method {_quoted(str(method), secret)} is not supported: use sudo")
     password = asked_password or v.get("ansible_become_password") or v.get("ansible_become_pass")
     return Become("sudo-S", str(password)) if password else Become("sudo-n")
+
+
+def _read(v: Mapping[str, Any], name: str) -> tuple[Any, bool]:
+    """An inventory var, and whether computing it read a vault var (its value is never shown then)."""
+    from rosdeploy.inventory.templating import secret_reads
+    with secret_reads() as read:
+        value = v.get(name)
+    return value, bool(read)
+
+
+def _quoted(value: str, secret: bool) -> str:
+    return "'********' (computed from a vault var: a secret is never shown)" if secret else shown(value)
 
 
 def rules_name(project: str) -> str:

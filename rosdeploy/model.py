@@ -55,7 +55,8 @@ class Host:
     udev: tuple[UdevDevice, ...] = ()
     gpu: bool = False
     network: str = "default"                # robots sharing a network must not share a domain ID
-    secret_values: frozenset[str] = frozenset()  # every value that came from a vault file
+    # every value that came from a vault file; not in repr: `{{ host|string }}` would write them all
+    secret_values: frozenset[str] = field(default=frozenset(), repr=False)
     source: str = ""                        # "file:line" where the host was declared
 
 
@@ -217,7 +218,7 @@ class RenderedRelease:
     version: str
     files: tuple[RenderedFile, ...]     # sorted by name
     images: tuple[str, ...]             # full refs to pull, sorted, e.g. "registry.local:5000/demo/driver:1.0.0"
-    secret_values: frozenset[str] = frozenset()
+    secret_values: frozenset[str] = field(default=frozenset(), repr=False)   # never printed
     # compose.yml as data when the built-in template wrote it (rosdeploy.compose_data), so the
     # checks need not parse it back; None for a user's own compose template. Not part of the digest.
     compose_data: Any = field(default=None, compare=False, repr=False)

@@ -31,7 +31,7 @@ from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError, shown
 from rosdeploy.files import FILES_DIR, FileRenderer
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
-from rosdeploy.inventory.templating import secret_read, secret_reads
+from rosdeploy.inventory.templating import not_quoted, secret_read, secret_reads, unless_secret
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
 from rosdeploy.sandbox import (ContainedLoader, Layered, Sandbox, ShippedSandbox, describe, render_value,
                                shipped_cache,
@@ -659,7 +659,7 @@ class Renderer:
             return render_value(template, {"vars": variables, "host": host, "inventory_hostname": host.name},
                                 variables)
         except jinja2.TemplateError as exc:
-            problems.append(self._problem(key, f"robot {shown(host.name)}: {exc.message}"))
+            problems.append(self._problem(key, f"robot {shown(host.name)}: {unless_secret(exc.message or '')}"))
             return ""
 
     def _check_env_leaks(self, host: Host, service: str, env: Mapping[str, str], problems: list[Problem]) -> None:
@@ -707,7 +707,10 @@ class Renderer:
 
     def _peers(self, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> tuple[str, ...]:
         """Unicast DDS peers: every service of this release on a bridge network, then `dds_peers`."""
-        extra = variables.get("dds_peers", [])
+        with secret_reads() as read:
+            extra = _defined(variables.get("dds_peers", []))
+        if read:    # refused by _read_vars; any message here would quote what was computed from it
+            return ()
         if isinstance(extra, str):
             extra = [extra]
         if not isinstance(extra, (list, tuple)) or not all(isinstance(p, str) and p for p in extra):
@@ -768,9 +771,10 @@ class Renderer:
     def _tunables(self, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> dict[str, Any]:
         out = {}
         for name, (default, valid, what) in TUNABLES.items():
-            value = variables.get(name, default)
+            with secret_reads() as read:
+                value = _defined(variables.get(name, default))
             if not valid(value):
-                problems.append(self._var_problem(host, name, f"{name} must be {what}; got {shown(value)}"))
+                problems.append(self._var_problem(host, name, f"{name} must be {what}; got {_got(value, read)}"))
             out[name] = value
         lease, announce = out["dds_lease_duration"], out["dds_lease_announcement"]
         both = all(TUNABLES[n][1](out[n]) for n in ("dds_lease_duration", "dds_lease_announcement"))
@@ -796,10 +800,10 @@ class Renderer:
             with secret_reads() as secret:
                 content = template.render(context)
         except (jinja2.TemplateError, _Rejected) as exc:
-            raise RenderError([self._template_problem(exc, template, host)]) from exc
+            raise RenderError([self._template_problem(exc, template, host, read=secret)]) from exc
         except Exception as exc:   # 1/0, recursion, a bound: the template's fault, never an internal error
             raise RenderError([self._template_problem(jinja2.TemplateRuntimeError(describe(exc)), template, host,
-                                                      exc.__traceback__)]) from exc
+                                                      exc.__traceback__, secret)]) from exc
         if out == ENV_FILE:
             return RenderedFile(out, content, mode=0o600, secret=bool(context["secrets"]))
         if secret:
@@ -810,8 +814,9 @@ class Renderer:
         return RenderedFile(out, content)
 
     def _template_problem(self, exc: Exception, template: jinja2.Template, host: Host,
-                          tb: Any = None) -> Problem:
-        """Locate an error raised while rendering: the deepest frame that is template code."""
+                          tb: Any = None, read: Mapping[str, str] | None = None) -> Problem:
+        """Locate an error raised while rendering: the deepest frame that is template code. `read`:
+        the vault vars read before it failed, when the error must not be quoted."""
         file, line = template.filename or template.name or "?", None
         names = {t.filename for t in self.templates.values()}
         for frame, lineno in traceback.walk_tb(tb or exc.__traceback__):
@@ -819,6 +824,8 @@ class Renderer:
             if filename in names or filename.endswith(".j2"):   # included partials too
                 file, line = filename, lineno
         message = getattr(exc, "message", None) or str(exc)
+        if read:
+            return Problem(file, line, "", f"robot {shown(host.name)}: {not_quoted(*min(read.items()))}")
         missing = re.search(r"'([^']+)' is undefined|has no attribute '([^']+)'", message)
         what = f"undefined name {next(g for g in missing.groups() if g)!r}" if missing else message
         return Problem(file, line, "", f"robot {shown(host.name)}: {what}" + (f" ({message})" if missing else ""))
@@ -832,6 +839,22 @@ class Renderer:
         if leaked:
             raise RenderError([_host_problem(host, "", f"a secret value would be written to {name}; pass it with "
                                                        "`secrets:` so it goes to .env only") for name in leaked])
+
+
+def _defined(value: Any) -> Any:
+    """A var whose template failed reads as an Undefined that carries its error (file, key, why):
+    raise it, rather than judge the Undefined as a wrong value ("got Undefined")."""
+    if isinstance(value, jinja2.Undefined):
+        value._fail_with_undefined_error()
+    return value
+
+
+def _got(value: Any, read: Mapping[str, str]) -> str:
+    """A refused value for a message: never one computed from a vault var, in any form."""
+    if not read:
+        return shown(value)
+    source = min(read.items())[1]
+    return f"'********' (computed from vault var {shown(source)}: a secret is never shown)"
 
 
 _TO_SECRETS = "move {key} to the service's `secrets:` ({key}: <inventory var>) so it goes to .env only"

@@ -23,8 +23,14 @@ every mutation of a list or dict, and ranges over 100,000 items. On top of it:
   items as it takes them, so it stops before holding more than MAX_LENGTH characters;
 - one render (a value, or a template file with what it includes) may take at most MAX_WORK
   units of work (loop items by the size of the loop body, calls, filter calls, items weighed,
-  `in` searches): nested loops or `range(99999)|select('in', big)` stop within a second or
-  two, not hours;
+  `in` searches, and the characters or items an operation reads or builds: a slice, `~`, a
+  comparison, a filter or str method of a long string): nested loops, `range(99999)|select('in',
+  big)` or `big[::-1]` in a loop stop within a second or two, not hours;
+- every string or list a filter, slice, operator, method call, literal or macro builds is at
+  most MAX_LENGTH characters or items (checked as soon as it is built: `|tojson|tojson...`
+  doubling its backslashes stops at the first one too long), and all those one render builds
+  together at most MAX_BUILT bytes: 400 strings of 999,999 characters in one list, or a macro
+  that recurses with a long argument, stop at 100 MB, not gigabytes;
 - output is the same on every run: no `random` filter, and no object whose text is its
   address (`{{ range }}`), so the same inputs always give the same release.
 
@@ -37,9 +43,11 @@ import collections.abc
 import contextlib
 import itertools
 import importlib
+import operator
 import os
 import re
 import string
+import sys
 import threading
 import types
 from functools import update_wrapper
@@ -60,20 +68,29 @@ MAX_LENGTH = 1_000_000          # characters or items one operation may produce
 OBJECT_WEIGHT = 64               # what an object other than a string, number or container counts as
 MAX_POWER_BITS = 4096           # `**` and int `*` results beyond this are a DoS, not a configuration value
 MAX_WORK = 10_000_000           # units of work one render may take (about a second: see the costs below)
-_SCAN_RATE = 16                 # items an `in` search scans (at C speed) per unit of MAX_WORK
+_SCAN_RATE = 8                  # items an `in` search scans (at C speed, ~16 ns each) per unit of MAX_WORK
 _RECURSE_COST = 64              # a recursive loop's `loop(x)`, per item: a call, a new loop, its output
 # MAX_WORK is in units of about 0.1 µs of work (an empty loop's iteration takes one); what costs more:
 _NODE_COST = 4                  # an expression or statement in a loop body, per iteration
 _FILTER_COST = 32               # a filter call (`map('int')` calls one per item, in no loop body)
 _CALL_COST = 48                 # a call through the sandbox (`x.upper()`): checks, then the call
 _WEIGH_COST = 5                 # an item weighed (a filter's list argument, each time)
+_CHAR_SHIFT = 4                 # a character read or built at C speed (slice, `~`, compare): 1/16 unit
+_ITEM_COST = 2                  # an item of a container walked in Python (to price a comparison)
+MAX_BUILT = 100_000_000         # bytes of strings and containers one render may build in all
+_ITEM_BYTES = 64                # what an item of a container a filter or method built may hold besides its slot
 # A %-format or str.format width/precision of 5+ digits: pads to 10**4+ characters.
 _BIG_FORMAT = re.compile(r"%[-#0 +]*(\d{5,}|\*)|%[-#0 +]*\d*\.\d{5,}|\{[^{}]*:[^{}]*\d{5,}[^{}]*\}")
 _WIDTH_FILTERS = ("center", "indent", "wordwrap", "truncate", "batch", "slice")
 _TOO_LONG = f"a value longer than {MAX_LENGTH:,} characters is not allowed"
 _TOO_MUCH_WORK = (f"this template takes more than {MAX_WORK:,} loop steps or searches (loops inside loops, or `in` "
                   "a long list many times) and is not allowed: loop over less, or search a dict instead of a list")
+_TOO_MUCH_BUILT = (f"this template builds more than {MAX_BUILT // 1_000_000} MB of strings and lists in all (long "
+                   "values copied in a loop, into a list or through a recursive macro) and is not allowed: build "
+                   "fewer or shorter values")
 _CONTAINERS = (list, tuple, dict, set, frozenset)
+_TEXTS = (str, bytes)
+_sizeof = sys.getsizeof
 # What a single value may not contain (statements that loop, define code or read other files).
 _VALUE_FORBIDDEN = (jinja2.nodes.For, jinja2.nodes.Macro, jinja2.nodes.CallBlock, jinja2.nodes.Include,
                     jinja2.nodes.Import, jinja2.nodes.FromImport, jinja2.nodes.Extends, jinja2.nodes.Block,
@@ -82,16 +99,17 @@ _VALUE_FORBIDDEN = (jinja2.nodes.For, jinja2.nodes.Macro, jinja2.nodes.CallBlock
 
 # re's own parser (no stubs): a pattern's parse tree, to bound its backtracking before matching
 _sre_parse: Any = importlib.import_module("re._parser")
-_RENDER = threading.local()     # .budget: [work left] of the render under way in this thread, or None
+_RENDER = threading.local()     # .budget: [work left, bytes left] of the render under way in this thread, or None
 
 
 def _bounded_concat(parts: Iterable[str]) -> str:
     """Template output, joined only when it is at most MAX_LENGTH characters, counted as it comes
     (a loop of long pieces stops at the first past the bound, before holding them all). Every
     render ends here, so the outermost call holds the render's MAX_WORK budget."""
-    if getattr(_RENDER, "budget", None) is not None:      # a macro, `{% set %}` block, inventory var
-        return _joined(parts)
-    _RENDER.budget = [MAX_WORK]
+    budget = getattr(_RENDER, "budget", None)
+    if budget is not None:      # a macro, `{% set %}` block, inventory var: a string it holds on to
+        return _built(_joined(parts), budget, "this block's output")
+    _RENDER.budget = [MAX_WORK, MAX_BUILT]
     try:
         return _joined(parts)
     finally:
@@ -122,10 +140,10 @@ def _budget(context: Any = None) -> list[int]:
     if budget is not None:
         return budget
     if context is None:
-        return [MAX_WORK]
+        return [MAX_WORK, MAX_BUILT]
     budget = getattr(context, "_work_left", None)
     if budget is None:
-        budget = context._work_left = [MAX_WORK]
+        budget = context._work_left = [MAX_WORK, MAX_BUILT]
     return budget
 
 
@@ -135,6 +153,113 @@ def charge(units: int, budget: list[int] | None = None) -> None:
     budget[0] -= units
     if budget[0] < 0:
         raise SecurityError(_TOO_MUCH_WORK)
+
+
+def _built(value: Any, budget: list[int], what: str = "this value", new_items: bool = False) -> Any:
+    """`value`, just built by an operation of the render (a filter, slice, `~`, operator, method
+    call, literal, block): refused when longer than MAX_LENGTH, and charged to the render's work
+    (the characters or items built) and to the bytes it may build in all (MAX_BUILT).
+    `new_items`: a container whose items may be new objects too (a filter's or method's result)."""
+    if isinstance(value, _TEXTS):
+        size = len(value)
+        work = size >> _CHAR_SHIFT
+        held = _sizeof(value)
+    elif isinstance(value, _CONTAINERS):
+        size = work = len(value)
+        held = _sizeof(value) + (size * _ITEM_BYTES if new_items else 0)
+    else:
+        return value
+    if size > MAX_LENGTH:
+        raise SecurityError(f"{what} is longer than {MAX_LENGTH:,} characters or items, which is not allowed")
+    budget[0] -= work
+    budget[1] -= held
+    if budget[0] < 0:
+        raise SecurityError(_TOO_MUCH_WORK)
+    if budget[1] < 0:
+        raise SecurityError(_TOO_MUCH_BUILT)
+    return value
+
+
+def _touch_cost(value: Any, limit: int = MAX_WORK) -> int:
+    """The work of reading all of `value` at C speed (comparing it, hashing it): a string 1/16
+    unit a character; a container _ITEM_COST an item walked, plus its strings. A container is
+    walked in Python, so the walk stops past `limit` (the caller is refused then anyway)."""
+    if isinstance(value, _TEXTS):
+        return len(value) >> _CHAR_SHIFT
+    if not isinstance(value, _CONTAINERS) or not value:
+        return 0
+    cost = 0
+    todo = [value]
+    while todo and cost <= limit:
+        item = todo.pop()
+        if isinstance(item, _TEXTS):
+            cost += _ITEM_COST + (len(item) >> _CHAR_SHIFT)
+        elif isinstance(item, _CONTAINERS):
+            # not memoised: comparing [big] * 9 to [big2] * 9 compares big nine times
+            cost += _ITEM_COST
+            todo.extend(itertools.chain.from_iterable(item.items()) if isinstance(item, dict) else item)
+        else:
+            cost += _ITEM_COST
+    return cost
+
+
+def _compare_cost(left: Any, right: Any) -> int:
+    """What comparing left and right may read: the smaller of the two (it stops at the shorter)."""
+    cost = _touch_cost(left)
+    return min(cost, _touch_cost(right, cost)) if cost else 0
+
+
+_COMPARE: dict[str, Callable[[Any, Any], Any]] = {
+    "eq": operator.eq, "ne": operator.ne, "lt": operator.lt, "lteq": operator.le, "gt": operator.gt,
+    "gteq": operator.ge}
+
+
+def compared(op: str, left: Any, right: Any, context: Any) -> Any:
+    """`left op right` (one comparison, not `in`), charged for the characters or items it reads:
+    `big == big2` in a loop was as cheap as `1 == 1`."""
+    cost = _compare_cost(left, right)
+    if cost:
+        charge(cost, _budget(context))
+    return _COMPARE[op](left, right)
+
+
+def touched(value: Any, context: Any) -> Any:
+    """An operand of a chained comparison (`a < b < c`), charged for all of it."""
+    cost = _touch_cost(value)
+    if cost:
+        charge(cost, _budget(context))
+    return value
+
+
+def contained(value: Any, container: Any, context: Any) -> bool:
+    """`value in container`, charged as searched() plus, for a list or tuple, the needle's length
+    for every item it may be compared with (a long string against many as long)."""
+    cost = _search_cost(container)
+    per_item = _touch_cost(value)
+    if per_item:
+        cost += per_item * (len(container) if isinstance(container, (list, tuple)) else 1)
+    charge(cost, _budget(context))
+    return value in container
+
+
+def _search_cost(container: Any) -> int:
+    scanned = len(container) if isinstance(container, (str, bytes, list, tuple, range)) else 0
+    return 1 + scanned // _SCAN_RATE
+
+
+def sliced(value: Any, context: Any) -> Any:
+    """The result of `x[a:b]` (see _BoundedCodeGenerator): `big[::-1]` copies all of big."""
+    return _built(value, _budget(context), "this slice")
+
+
+def literal(value: Any, context: Any) -> Any:
+    """A list, tuple or dict written in the template: at most MAX_LENGTH characters or items in
+    its items together (one level: an item counts by its length), its slots charged to MAX_BUILT."""
+    size = 0
+    for item in itertools.chain.from_iterable(value.items()) if isinstance(value, dict) else value:
+        size += len(item) if isinstance(item, (*_TEXTS, *_CONTAINERS)) else 1
+    _refuse_longer(size, f"this {type(value).__name__}")
+    return _built(value, _budget(context), f"this {type(value).__name__}")
 
 
 def counted(iterable: Any, cost: int = 1, budget: list[int] | None = None) -> Any:
@@ -189,16 +314,17 @@ def charged(units: int) -> str:
 
 
 def searched(container: Any, context: Any = None) -> Any:
-    """The right side of `in` (the operator or the test), charged for the items it scans: a
-    list, tuple, string or range its length / _SCAN_RATE; a dict or set one lookup."""
-    scanned = len(container) if isinstance(container, (str, bytes, list, tuple, range)) else 0
-    charge(1 + scanned // _SCAN_RATE, _budget(context))
+    """The right side of `in` in a chained comparison, charged for the items it scans: a list,
+    tuple, string or range its length / _SCAN_RATE; a dict or set one lookup (see contained())."""
+    charge(_search_cost(container), _budget(context))
     return container
 
 
 class _BoundedCodeGenerator(CodeGenerator):
     """`a ~ b` joins its strings inline, with no environment hook: check each operand as output is
-    (see written()), and the result's length after (never longer than its operands together)."""
+    (see written()), and the result's length after (never longer than its operands together).
+    Slices, comparisons and list, tuple and dict literals are inline Python too: each goes through
+    an environment hook that charges what it reads or builds (sliced, compared, literal)."""
 
     @optimizeconst
     def visit_Concat(self, node: jinja2.nodes.Concat, frame: Frame) -> None:
@@ -214,7 +340,75 @@ class _BoundedCodeGenerator(CodeGenerator):
             self.write("environment.finalize(")
             self.visit(arg, frame)
             self.write("), ")
-        self.write(")))")
+        self.write(")), context)")
+
+    @optimizeconst
+    def visit_Getitem(self, node: jinja2.nodes.Getitem, frame: Frame) -> None:
+        if not isinstance(node.arg, jinja2.nodes.Slice):     # environment.getitem: one item, no copy
+            super().visit_Getitem(node, frame)
+            return
+        self.write("environment.sliced(")
+        super().visit_Getitem(node, frame)
+        self.write(", context)")
+
+    def visit_List(self, node: jinja2.nodes.List, frame: Frame) -> None:
+        self.write("environment.literal(")
+        super().visit_List(node, frame)
+        self.write(", context)")
+
+    def visit_Tuple(self, node: jinja2.nodes.Tuple, frame: Frame) -> None:
+        if node.ctx != "load":          # `{% set a, b = ... %}`, `{% for k, v in ... %}`: names to assign
+            super().visit_Tuple(node, frame)
+            return
+        self.write("environment.literal(")
+        super().visit_Tuple(node, frame)
+        self.write(", context)")
+
+    def visit_Dict(self, node: jinja2.nodes.Dict, frame: Frame) -> None:
+        self.write("environment.literal(")
+        super().visit_Dict(node, frame)
+        self.write(", context)")
+
+    @optimizeconst
+    def visit_Compare(self, node: jinja2.nodes.Compare, frame: Frame) -> None:
+        # One comparison (nearly all): compared() or contained(), which see both sides. A constant
+        # side is short (source text), and so is the comparison.
+        if len(node.ops) == 1:
+            op = node.ops[0]
+            if op.op in ("in", "notin"):
+                self.write("(" if op.op == "in" else "(not ")
+                self.write("environment.contained(")
+                self.visit(node.expr, frame)
+                self.write(", ")
+                self.visit(op.expr, frame)
+                self.write(", context))")
+                return
+            if isinstance(node.expr, jinja2.nodes.Const) or isinstance(op.expr, jinja2.nodes.Const):
+                self.write("(")
+                self.visit(node.expr, frame)
+                self.write(f" {operators[op.op]} ")
+                self.visit(op.expr, frame)
+                self.write(")")
+                return
+            self.write(f"environment.compared({op.op!r}, ")
+            self.visit(node.expr, frame)
+            self.write(", ")
+            self.visit(op.expr, frame)
+            self.write(", context)")
+            return
+        self.write("(")
+        self._touched(node.expr, frame)
+        for op in node.ops:
+            self.visit(op, frame)
+        self.write(")")
+
+    def _touched(self, expr: jinja2.nodes.Expr, frame: Frame) -> None:
+        if isinstance(expr, jinja2.nodes.Const):
+            self.visit(expr, frame)
+            return
+        self.write("environment.touched(")
+        self.visit(expr, frame)
+        self.write(", context)")
 
     def visit_For(self, node: jinja2.nodes.For, frame: Frame) -> None:
         # every loop takes its items through counted(): nested loops share one budget per render
@@ -234,9 +428,11 @@ class _BoundedCodeGenerator(CodeGenerator):
         super().visit_CallBlock(node, frame)
 
     def visit_Operand(self, node: jinja2.nodes.Operand, frame: Frame) -> None:
-        # `x in big` inside a loop is a loop too: charged by searched()
+        # in a chain (`a < b < c`, see visit_Compare): `x in big` inside a loop is a loop too,
+        # charged by searched(); another operand by what comparing it reads
         if node.op not in ("in", "notin"):
-            super().visit_Operand(node, frame)
+            self.write(f" {operators[node.op]} ")
+            self._touched(node.expr, frame)
             return
         self.write(f" {operators[node.op]} environment.searched(")
         self.visit(node.expr, frame)
@@ -370,6 +566,11 @@ class Sandbox(_PlainReads):
     counted = staticmethod(counted)
     searched = staticmethod(searched)
     charged = staticmethod(charged)
+    contained = staticmethod(contained)
+    compared = staticmethod(compared)
+    touched = staticmethod(touched)
+    sliced = staticmethod(sliced)
+    literal = staticmethod(literal)
 
     def __init__(self, plain_types: tuple[type, ...] = (), **kwargs: Any) -> None:
         """`plain_types`: see _PlainReads."""
@@ -387,6 +588,8 @@ class Sandbox(_PlainReads):
             self.filters[name] = bound(self.filters[name])
         self.filters["random"] = _no_random
         self.tests["in"] = _test_in
+        for name, rate in _READING_TESTS.items():
+            self.tests[name] = _charged_test(cast(Callable[..., Any], self.tests[name]), rate)
         for name in ("default", "d"):
             self.filters[name] = _failing_refused(self.filters[name])
         for name in ("defined", "undefined"):
@@ -400,7 +603,7 @@ class Sandbox(_PlainReads):
         self.filters.update(filters)
         for name, func in self.filters.items():
             if not getattr(func, "_weighed", False):
-                self.filters[name] = _weighed_filter(func)
+                self.filters[name] = _weighed_filter(func, name)
 
     def make_globals(self, d: MutableMapping[str, Any] | None) -> MutableMapping[str, Any]:
         """A plain dict, not Jinja's ChainMap: every render copies a template's globals twice, and
@@ -418,7 +621,10 @@ class Sandbox(_PlainReads):
             _check_power(left, right)
         elif operator_ == "%" and isinstance(left, (str, bytes)):
             _check_percent(left, right)
-        return self.binop_table[operator_](left, right)
+        result = self.binop_table[operator_](left, right)
+        if isinstance(result, (*_TEXTS, list, tuple)):      # a new string or list, as long as it came out
+            _built(result, _budget(context), f"the result of {operator_}")
+        return result
 
     def call(self, context: Any, obj: Any, /, *args: Any, **kwargs: Any) -> Any:
         """Every call a template makes: the str/bytes methods that grow a string are checked
@@ -427,21 +633,30 @@ class Sandbox(_PlainReads):
         charge(_CALL_COST, budget)
         if obj is counted:                              # a `{% for %}` (see _BoundedCodeGenerator)
             return counted(*args, budget=budget)
-        check = _METHOD_BOUNDS.get(getattr(obj, "__name__", None))
-        if check is not None and isinstance(getattr(obj, "__self__", None), (str, bytes)):
-            args = check(obj.__self__, args, kwargs)
+        owner = getattr(obj, "__self__", None)
+        if isinstance(owner, _TEXTS):                   # a str method: reads all of it, may build a new one
+            _charge_method(owner, args, budget)
+            check = _METHOD_BOUNDS.get(obj.__name__)
+            if check is not None:
+                args = check(owner, args, kwargs)
         elif isinstance(obj, LoopContext) and args:     # a recursive loop's `loop(children)`
             args = (counted(args[0], _RECURSE_COST, budget), *args[1:])
         elif obj is dict and args:                      # dict(lazy pairs) holds them all
             args = (_lazy_weighed(args[0]), *args[1:])
-        return super().call(context, obj, *args, **kwargs)
+        result = super().call(context, obj, *args, **kwargs)
+        if result is owner or result is None:
+            return result
+        if isinstance(owner, _TEXTS) or obj is dict or getattr(obj, "_builds", False) \
+                or (isinstance(owner, _CONTAINERS) and isinstance(result, _CONTAINERS)):   # `l.copy()`
+            _built(result, budget, "the result of this call", new_items=True)
+        return result
 
     @staticmethod
-    def bounded_text(text: str) -> str:
+    def bounded_text(text: str, context: Any = None) -> str:
         """The result of `~` (see _BoundedCodeGenerator)."""
         if len(text) > MAX_LENGTH:
             raise SecurityError(_TOO_LONG)
-        return text
+        return _built(text, _budget(context), "the result of ~")
 
     def wrap_str_format(self, value: Any) -> Callable[..., str] | None:
         """Jinja's own wrapper (called on every attribute read), with a formatter that stops at
@@ -468,7 +683,9 @@ class Sandbox(_PlainReads):
                 args = ()
             return str_type(formatter.vformat(f_self, args, kwargs))
 
-        return update_wrapper(wrapper, value)
+        wrapped = update_wrapper(wrapper, value)
+        wrapped._builds = True  # type: ignore[attr-defined]  # Sandbox.call charges what it built
+        return wrapped
 
 
 class _BoundedFormatter(SandboxedFormatter):
@@ -958,7 +1175,39 @@ def _no_random(*args: Any, **kwargs: Any) -> Any:
 @jinja2.pass_context
 def _test_in(context: Any, value: Any, seq: Any) -> bool:
     """Jinja's `in` test, charged like the operator: `select('in', big)` is a loop too."""
-    return value in searched(seq, context)
+    return contained(value, seq, context)
+
+
+# Tests that read all of a long string or list: a comparison (charged like the operator), or
+# islower/isupper (about 25 ns a character of a 4-byte string: 1/4 unit, 4 times a compare's).
+_READING_TESTS = {name: 1 for name in ("==", "eq", "equalto", "!=", "ne", ">", "gt", "greaterthan", ">=", "ge",
+                                       "<", "lt", "lessthan", "<=", "le")} | {"lower": 4, "upper": 4}
+
+
+def _charged_test(func: Callable[..., Any], rate: int) -> Callable[..., Any]:
+    @jinja2.pass_context
+    def test(context: Any, value: Any, *args: Any) -> Any:
+        cost = _compare_cost(value, args[0]) if args else _touch_cost(value)
+        if cost:
+            charge(cost * rate, _budget(context))
+        return func(value, *args)
+    return test
+
+
+def _charge_method(text: str | bytes, args: tuple[Any, ...], budget: list[int]) -> None:
+    """A str method reads its string (upper, replace, count, find...: up to ~25 ns a character,
+    1/4 unit) and its arguments (a list to join: each item weighed in Python first)."""
+    cost = len(text) >> _METHOD_SHIFT
+    for arg in args:
+        if isinstance(arg, _TEXTS):
+            cost += len(arg) >> _CHAR_SHIFT
+        elif isinstance(arg, _CONTAINERS):
+            cost += len(arg) * _ITEM_COST
+    if cost:
+        charge(cost, budget)
+
+
+_METHOD_SHIFT = 2
 
 
 def regex_replace(value: Any, pattern: str, replacement: str = "") -> str:
@@ -1013,18 +1262,44 @@ _FILTER_BOUNDS = {"replace": _bounded_replace, "join": _bounded_join_filter, "in
                   "wordwrap": _bounded_wordwrap, "sum": _bounded_sum}
 
 
-def _weighed_filter(func: Callable[..., Any]) -> Callable[..., Any]:
-    """`func`, its value weighed and its call charged to the render's work first. It takes the
-    template context (to find the render's budget) and passes `func` what its marker asks for."""
+# Filters that take longer than 1/4 unit (25 ns) a character of a string, in units per 4
+# characters (measured on 4-byte and escaped text, about twice over): most iterate the string
+# in Python, a character at a time. Any other filter is charged 1 (a quarter unit a character).
+_SLOW_FILTERS = {
+    **dict.fromkeys(("urlize", "compose_list"), 160),
+    **dict.fromkeys(("map", "select", "reject", "selectattr", "rejectattr"), 96),
+    **dict.fromkeys(("sort", "unique", "groupby", "dictsort", "sum"), 64),
+    **dict.fromkeys(("min", "max", "wordwrap"), 32),
+    **dict.fromkeys(("batch", "slice", "urlencode", "title", "striptags", "wordcount", "pprint"), 16),
+    "join": 8,
+    **dict.fromkeys(("list", "tojson", "xml", "logrotate_path", "yaml_key", "regex_replace"), 4),
+    # and those that read a string's length or an end of it, not all of it: a filter call
+    **dict.fromkeys(("length", "count", "first", "last", "default", "d", "string"), 0),
+}
+# Filters whose result is their value or one of its items, not something new: not charged as built
+_PICKING = frozenset({"first", "last", "min", "max", "attr", "default", "d", "string", "random"})
+
+
+def _weighed_filter(func: Callable[..., Any], name: str = "filter") -> Callable[..., Any]:
+    """`func`, its value weighed and its call charged to the render's work first (a string by its
+    length, at the filter's rate), and its result checked and charged as built (_built). It takes
+    the template context (to find the render's budget) and passes `func` what its marker asks for."""
     first = _FIRST_ARG.get(getattr(func, "jinja_pass_arg", None), None)
+    rate = _SLOW_FILTERS.get(name, 1)
+    what = f"the result of |{name}"
+    picking = name in _PICKING
 
     @jinja2.pass_context
     def weighed(context: Any, *args: Any, **kwargs: Any) -> Any:
         budget = _budget(context)
+        value = None
         if args:
             value = args[0]
-            if type(value) is str:      # most calls (the built-in templates' quoting filters): one filter call
-                charge(_FILTER_COST, budget)
+            if isinstance(value, _TEXTS):   # most calls (the built-in templates' quoting filters)
+                size = len(value)
+                if size > MAX_LENGTH:
+                    raise SecurityError(_TOO_LONG)
+                charge(_FILTER_COST + (size * rate >> 2), budget)
             elif isinstance(value, _CONTAINERS):
                 size = weight(value)
                 if size > MAX_LENGTH:
@@ -1032,11 +1307,11 @@ def _weighed_filter(func: Callable[..., Any]) -> Callable[..., Any]:
                 charge(size * _WEIGH_COST, budget)      # so `big|length` in a loop is a loop over big
             else:
                 charge(_FILTER_COST, budget)
-                if not isinstance(value, str):
-                    args = (_lazy_weighed(value), *args[1:])
-        if first is None:
-            return func(*args, **kwargs)
-        return func(first(context), *args, **kwargs)
+                args = (_lazy_weighed(value), *args[1:])
+        result = func(*args, **kwargs) if first is None else func(first(context), *args, **kwargs)
+        if result is not value and not picking and isinstance(result, (*_TEXTS, *_CONTAINERS)):
+            _built(result, budget, what, new_items=True)
+        return result
     weighed._weighed = True  # type: ignore[attr-defined]
     return weighed
 

@@ -28,14 +28,15 @@ import threading
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass, replace
-from typing import Callable, Iterable, Mapping, Protocol, Sequence
+from typing import Callable, Iterable, Iterator, Mapping, Protocol, Sequence
 
 import paramiko
 from fabric import Config, Connection
 
 from rosdeploy import execwait, yamlsrc
+from rosdeploy.vault import is_password_file
 from rosdeploy.commands import Command
-from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError, InputError
+from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError, InputError, Problem
 from rosdeploy.fleet import MAX_KNOWN_HOSTS, MAX_SSH_CONFIG
 from rosdeploy.model import Host
 
@@ -125,14 +126,37 @@ def _parsed_ssh_config(options: SSHOptions, stamps: tuple[tuple[str, int], ...])
     # each read bounded: a fifo, /dev/zero or a binary file must not hang, fill memory or crash the run
     config = paramiko.SSHConfig()
     for each, _ in stamps:
+        if is_password_file(each):    # its text unlocks every vault: never parsed, never quoted
+            raise InputError([Problem(each, None, "", "a vault password file, not an ssh config: fix `ssh.config` in "
+                                                      "the fleet file")])
         try:
             text = yamlsrc.read_bytes(each, MAX_SSH_CONFIG, "an OpenSSH client config").decode("utf-8")
         except UnicodeDecodeError:
             raise ConnectError("ssh", f"ssh config {each} is not UTF-8 text: fix it") from None
         except InputError as exc:
             raise ConnectError("ssh", f"ssh config {each}: {exc.problems[0].message}") from None
-        config.parse(io.StringIO(text))
+        lines = _Numbered(text)
+        try:
+            config.parse(lines)
+        except (paramiko.ssh_exception.ConfigParseError, ValueError):
+            # paramiko's error quotes the line, which may be anything (a secret in a file named by mistake)
+            # an input error (exit 2), not an unreachable robot: no robot can be reached with this config
+            why = "not an OpenSSH client config line (the line is not shown): fix it, or `ssh.config` in the fleet file"
+            raise InputError([Problem(each, lines.number, "", why)]) from None
     return config
+
+
+class _Numbered:
+    """A config's lines, counted as paramiko reads them, so an error can name the line by number."""
+
+    def __init__(self, text: str) -> None:
+        self._text = text
+        self.number = 0
+
+    def __iter__(self) -> Iterator[str]:
+        for line in io.StringIO(self._text):
+            self.number += 1
+            yield line
 
 
 def fabric_config(options: SSHOptions) -> Config:

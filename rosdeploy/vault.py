@@ -283,6 +283,34 @@ class WrongPassword(VaultError):
     """The password did not open the file: another vault id may."""
 
 
+# Every password file a Vault of this process may read, absolute: nothing else rosdeploy reads
+# (a release file, the ssh config) may be one of them (see is_password_file).
+_PASSWORD_FILES: set[str] = set()
+_PASSWORD_FILES_LOCK = threading.Lock()
+
+
+def is_password_file(path: str | os.PathLike[str]) -> bool:
+    """Whether `path` is the same file as a vault password file: one a Vault of this process may
+    read, or $ROSDEPLOY_VAULT_PASSWORD_FILE's. Its text unlocks every vault, so it is never
+    copied into a release (readable on the robot) nor parsed where an error could quote it."""
+    found = _same_file(path)
+    if found is None:
+        return False
+    with _PASSWORD_FILES_LOCK:
+        known = set(_PASSWORD_FILES)
+    if os.environ.get(ENV_PASSWORD_FILE):
+        known.add(os.path.expanduser(os.environ[ENV_PASSWORD_FILE]))
+    return any(_same_file(each) == found for each in known)
+
+
+def _same_file(path: str | os.PathLike[str]) -> tuple[int, int] | None:
+    try:
+        found = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return found.st_dev, found.st_ino
+
+
 class Vault:
     """Vault passwords, each found on first need, and a cache of decrypted files.
 
@@ -306,6 +334,8 @@ class Vault:
         self._lock = threading.Lock()
         if password is not None:
             self._passwords[0] = (password, "the caller")
+        with _PASSWORD_FILES_LOCK:
+            _PASSWORD_FILES.update(os.path.abspath(each) for each in self.password_files)
 
     @property
     def password_source(self) -> str:

@@ -22,6 +22,7 @@ import threading
 from typing import Any, Callable, Iterator, Mapping
 
 import jinja2
+from jinja2.sandbox import unsafe
 
 from rosdeploy.sandbox import MAX_LENGTH, Failing, Sandbox
 
@@ -112,6 +113,29 @@ def secret_reads() -> Iterator[dict[str, str]]:
         yield found
     finally:
         _LOCAL.reads = outer
+        if outer is not None:    # a reader inside another: what it saw was read for the outer one too
+            for var, source in found.items():
+                outer.setdefault(var, source)
+
+
+def reading_secret() -> tuple[str, str] | None:
+    """The first (var, vault var) the innermost secret_reads() collected so far, None if none: an
+    error raised while computing a value must not quote it, nor the exception's text, once the
+    computation read a secret (masking the output finds only a secret's exact text)."""
+    reads = getattr(_LOCAL, "reads", None)
+    return min(reads.items()) if reads else None
+
+
+def unless_secret(reason: str) -> str:
+    """`reason`, unless the failing computation read a vault var (see reading_secret): then which
+    one, and not the reason, which may quote a value computed from it."""
+    read = reading_secret()
+    return reason if read is None else not_quoted(*read)
+
+
+def not_quoted(var: str, source: str) -> str:
+    return (f"this fails after reading {secret_read(var, source)}; the error is not shown, as it may quote the "
+            "secret or a value computed from it (check the value with `rosdeploy vault view`)")
 
 
 def secret_read(var: str, source: str) -> str:
@@ -145,22 +169,27 @@ class HostVars(Mapping[str, Any]):
         self._secret_from = {key: key for key in self._raw if _from_vault(self._raw[key], origins.get(key))}
         self._sources_read: set[str] = set()    # vault vars whose value (or one computed from it) was read
 
+    # A template reaches this object (`host.vars`, `hostvars[name]`): every member that reads a
+    # value past value()'s tracking (the raw values, the secret texts, an Origin's
+    # inline_secrets) or changes one (override) is refused to it. The sandbox refuses `_` names;
+    # the public ones rosdeploy calls from modules owned elsewhere are marked unsafe, which
+    # the sandbox refuses to call.
+    @unsafe
     def override(self, key: str, value: Any) -> None:
         """A value rosdeploy normalised (an absolute path): what every reader then sees."""
         self._overrides[key] = value
 
-    @property
-    def raw(self) -> Mapping[str, Any]:
-        return self._raw
-
+    @unsafe
     def origin(self, key: str) -> Origin | None:
         """Where the value in effect was set (the file and key that won the precedence merge)."""
         return self._origins.get(key)
 
+    @unsafe
     def secret_source(self, key: str) -> str | None:
         """The vault var that `key`'s value came from, once `key` was read; None if none."""
         return self._secret_from.get(key)
 
+    @unsafe
     def secret_texts(self) -> frozenset[str]:
         """Every text known to be secret now: the vault vars' values, and the values computed from
         them so far (as text, and every string inside)."""
@@ -173,6 +202,7 @@ class HostVars(Mapping[str, Any]):
                 texts.add(str(self._done[var]))
         return frozenset(texts)
 
+    @unsafe
     def secret_texts_read(self) -> frozenset[str]:
         """The texts of this robot's vault vars that anything has read so far (directly or through
         other vars): only these can be in what was rendered, so only these are searched for
@@ -193,6 +223,7 @@ class HostVars(Mapping[str, Any]):
             kind = Unresolved if failed.undefined else Broken
             return kind(hint=problem, name=key, exc=UnresolvedVar)  # type: ignore[arg-type]
 
+    @unsafe
     def value(self, key: str) -> Any:
         """The templated value; TemplateFailed (naming the var) if it cannot be templated."""
         result = self._value(key)
@@ -240,14 +271,20 @@ class HostVars(Mapping[str, Any]):
         finally:
             _LOCAL.stack = stack
 
-    def lookup(self, name: str) -> Any:
+    def _lookup(self, name: str) -> Any:
         """What a template sees for `name`: the magic vars first, then the host's vars."""
         if name in self._magic:
             return self._magic[name]
         return self.value(name)
 
-    def knows(self, name: str) -> bool:
+    def _knows(self, name: str) -> bool:
         return name in self._magic or name in self._raw
+
+
+def raw_vars(hostvars: HostVars) -> Mapping[str, Any]:
+    """The merged vars as written, none templated (what `ansible-inventory --list` prints): for
+    Python callers only, as a function, since a template reaches a HostVars but no module."""
+    return hostvars._raw
 
 
 def _from_vault(value: Any, origin: Origin | None) -> bool:
@@ -279,11 +316,11 @@ class _Scope(dict):
         self._host = host
 
     def __contains__(self, name: object) -> bool:
-        return isinstance(name, str) and (self._host.knows(name) or name in _ENV.globals)
+        return isinstance(name, str) and (self._host._knows(name) or name in _ENV.globals)
 
     def __getitem__(self, name: str) -> Any:
-        if self._host.knows(name):
-            return self._host.lookup(name)
+        if self._host._knows(name):
+            return self._host._lookup(name)
         # a shared context gets no globals from Jinja: `range` and `dict` are looked up here
         return _ENV.globals[name]
 
@@ -311,13 +348,28 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
     except TemplateFailed:
         raise
     except jinja2.TemplateError as exc:
-        raise TemplateFailed(key, f"cannot template {shown(value)}: {_reason(exc)}",
-                             undefined=isinstance(exc, jinja2.UndefinedError)) from None
+        raise _failed(scope, key, value, _reason(exc), undefined=isinstance(exc, jinja2.UndefinedError)) from None
     except RecursionError:
-        raise TemplateFailed(key, f"cannot template {shown(value)}: the templates refer to each other without end, "
-                                  "or nest too deeply", deep=True) from None
+        raise _failed(scope, key, value, "the templates refer to each other without end, or nest too deeply",
+                      deep=True, fixed=True) from None
     except (TypeError, ValueError, ArithmeticError, LookupError, AttributeError) as exc:
-        raise TemplateFailed(key, f"cannot template {shown(value)}: {exc}") from None
+        raise _failed(scope, key, value, str(exc)) from None
+
+
+def _failed(scope: _Scope, key: str, value: str, reason: str, deep: bool = False, undefined: bool = False,
+            fixed: bool = False) -> TemplateFailed:
+    """Why `key` could not be templated. Neither a vault value (its `{{` made it a template) nor a
+    reason computed while reading one is quoted, whole, cut short or escaped: masking the output
+    finds a secret's exact text only. `fixed`: the reason is rosdeploy's own words."""
+    source = scope._host._secret_from.get(key)
+    if source == key:
+        what = f"cannot template the value of vault var {shown(key)} (not shown: it is secret)"
+    elif source is not None:
+        what = f"cannot template {shown(value)}, which reads {secret_read(source, source)}"
+    else:
+        return TemplateFailed(key, f"cannot template {shown(value)}: {reason}", deep=deep, undefined=undefined)
+    why = reason if fixed else "the error is not shown, as it may quote the secret or a value computed from it"
+    return TemplateFailed(key, f"{what}: {why}", deep=deep, undefined=undefined)
 
 
 def _expression(expr: str, scope: _Scope) -> Any:

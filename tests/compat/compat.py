@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 
 from rosdeploy.inventory import Inventory, load_inventory
+from rosdeploy.inventory.templating import raw_vars
 
 REPO = Path(__file__).resolve().parents[2]
 REAL = REPO.parent / "shared" / "ansible-inventories"
@@ -116,7 +117,7 @@ def unwrap(value: Any) -> Any:
 def ours(inventory: Path) -> tuple[Inventory, dict[str, Any]]:
     """rosdeploy's view in the same shape: raw merged vars (Ansible's --list does not template)."""
     loaded = load_inventory(str(inventory))
-    hostvars = {name: json.loads(json.dumps(dict(host.vars.raw))) for name, host in loaded.hosts.items()}
+    hostvars = {name: json.loads(json.dumps(dict(raw_vars(host.vars)))) for name, host in loaded.hosts.items()}
     groups = {name: set(group.hosts) for name, group in loaded.groups.items()}
     return loaded, {"groups": groups, "hostvars": hostvars}
 

@@ -11,6 +11,7 @@ import pytest
 from compat import REPO, ask, cli, require_ansible
 from rosdeploy.cli import vault as vault_cli
 from rosdeploy.inventory import load_inventory
+from rosdeploy.inventory.templating import raw_vars
 from rosdeploy.output import Output
 from rosdeploy.vault import Vault, VaultId, view_file
 
@@ -84,5 +85,5 @@ def test_the_example_inventory_reads_the_same_in_ansible(tmp: Path) -> None:
     assert done.returncode == 0, done.stderr
     theirs = json.loads(done.stdout)["_meta"]["hostvars"]
     loaded = load_inventory(str(example), Vault(password_file=str(password)))
-    assert {name: json.loads(json.dumps(dict(host.vars.raw))) for name, host in loaded.hosts.items()} == theirs
+    assert {name: json.loads(json.dumps(dict(raw_vars(host.vars)))) for name, host in loaded.hosts.items()} == theirs
     assert theirs["amr-n1"]["fleet_api_token"] == "demo-4f9c2a7e1b8d4e6fa0c3"

@@ -221,8 +221,10 @@ LITTLE_MEMORY = 600 * 2**20     # bytes of address space: Python and Jinja take 
 _CHILD = """
 import resource, sys
 resource.setrlimit(resource.RLIMIT_AS, ({limit}, {limit}))
+from rosdeploy.render import FILTERS
 from rosdeploy.sandbox import Layered, Sandbox, describe, render_value, value_template
 env = Sandbox()
+env.add_filters(FILTERS)     # the sandbox as the renderer makes it (xml, yaml_str...)
 source = sys.stdin.read()
 try:
     if sys.argv[1] == "file":
