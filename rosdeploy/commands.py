@@ -92,12 +92,14 @@ UNLOCK_SCRIPT = load("unlock.sh")
 
 
 def lock(root: str, project: str, owner: dict, break_stale: bool = False, dead_run: str = "",
-         guard: tuple[str, ...] = ()) -> Command:
+         guard: tuple[str, ...] = (), expect: str | None = None) -> Command:
     """mkdir is atomic on every filesystem: the lock is a directory holding its owner.
     `dead_run`: the run id of a holder proven dead; its lock (only) is removed first.
-    `guard`: arm the deploy guard under the lock (see arm_args)."""
+    `guard`: arm the deploy guard under the lock (see arm_args).
+    `expect`: `current`'s link as read before; if it moved, the lock is given back (exit 4, `moved`)."""
     return script("lock", LOCK_SCRIPT, root, project, json.dumps(owner, sort_keys=True),
-                  "yes" if break_stale else "no", dead_run, *guard)
+                  "yes" if break_stale else "no", dead_run, "no" if expect is None else "yes", expect or "",
+                  *guard)
 
 
 def arm_args(state: str, seconds: float, files: tuple[str, ...], images: tuple[str, ...]) -> tuple[str, ...]:

@@ -31,7 +31,7 @@ from rosdeploy.health import (PROBE_SOURCE, Poller, Verdict, diagnose, expected_
                               settled, start_levels, started_containers, topics_spec, wait_healthy)
 from rosdeploy.images import pull as image_pull
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
-from rosdeploy.owner import Controller, dead_run, describe, record, this_controller
+from rosdeploy.owner import Controller, dead_run, describe, holder_alive, record, this_controller
 from rosdeploy.results import (DEPLOYED, FAILED, LOCKED, ROLLED_BACK, SKIPPED, STOPPED, SWITCHED,
                                UNCHANGED, UNREACHABLE, HostResult, Step)
 from rosdeploy.robot import (RobotState, deployed, parse_state, passed_gate, release_services,
@@ -237,10 +237,12 @@ class RobotRun:
                                             self.compose_pref, self.wants_gpu(), full=full))
         return parse_state(out.stdout)
 
-    def lock(self, arm: tuple[str, ...] = ()) -> str | None:
-        """Take the robot's lock (and arm the guard under it); None when taken, else who holds it."""
+    def lock(self, arm: tuple[str, ...] = (), expect: str | None = None) -> str | None:
+        """Take the robot's lock (and arm the guard under it); None when taken, else who holds it.
+        `expect`: the `current` link the caller decided on; MOVED when another run switched the
+        robot since (the lock is not held then)."""
         holder = self._lock(lambda owner, dead: commands.lock(self.root, self.spec.project, owner,
-                                                               self.ctx.break_lock, dead, arm), "lock")[0]
+                                                               self.ctx.break_lock, dead, arm, expect), "lock")[0]
         if holder is not None:
             self.armed = None
         return holder
@@ -268,6 +270,8 @@ class RobotRun:
                 if out.ok:
                     self.locked = True
                     break
+                if out.exited == 4 and out.stdout.strip() == "moved":
+                    return MOVED, out
                 if out.exited != 3:
                     raise CommandFailed(self.host.name, out, step)
                 answer = out.stdout.split("\n@@", 1)[0]   # a locked_state's sections follow
@@ -490,7 +494,7 @@ def _put_back(run: RobotRun, release: RenderedRelease, state: RobotState, drifte
     base = {"running_release": new, "old_release": new, "new_release": new}
     holder = run.lock()
     if holder is not None:
-        return run.result(LOCKED, reason=_locked_by(holder), **base)
+        return run.result(LOCKED, reason=_locked_by(holder, run.ctx.controller), **base)
     held = hold.before_switch(run, state, f"its host changes that differ on the robot ({what}) are put back "
                                           "then; nothing changed")
     if held is not None:
@@ -505,30 +509,49 @@ def _put_back(run: RobotRun, release: RenderedRelease, state: RobotState, drifte
                       f"differed on the robot: {what}", **base)
 
 
-def _locked_by(holder: str) -> str:
+def _locked_by(holder: str, here: Controller | None = None) -> str:
+    """Who holds the lock, and what to do: --break-lock only for a lock this machine cannot prove
+    is a live run's (breaking a live run's lock lets two runs switch the robot at once)."""
+    try:
+        owner = json.loads(holder)
+    except ValueError:
+        owner = None
+    if here is not None and holder_alive(owner, here) is True:
+        return f"locked by {describe(holder)}, a run still going on this machine: wait for it to end"
     return f"locked by {describe(holder)} (wait, or clear a stale lock with --break-lock)"
 
 
 def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
     state = run.read_state(full=False)
-    new, old = release.release_id, state.current
-    base = {"old_release": old, "new_release": new}
     if run.ctx.cancel.is_set():
-        return run.result(SKIPPED, running_release=old, reason="interrupted before this robot started", **base)
-    done = _unchanged(run, release, state, repair=True)
-    if done is not None:
-        return done
-    state = run.read_state(full=True)    # the preflight facts, only when something will change
-    problems = preflight(state, run, run.spec.min_free_disk_mb)
-    if run.ctx.host_changes:
-        problems += hostchanges.preflight(run.t, run.root, run.spec.project, run.host, release,
-                                          run.ctx.become_password, state.missing_devices)
-    if problems:
-        return run.result(FAILED, running_release=old, reason="preflight: " + "; ".join(problems), **base)
-    holder = run.lock(run.guard_arm(state, release))
-    if holder is not None:
-        return run.result(LOCKED, running_release=old, reason=_locked_by(holder), **base)
-    return _switch(run, release, state, base)
+        return run.result(SKIPPED, running_release=state.current, reason="interrupted before this robot started",
+                          old_release=state.current, new_release=release.release_id)
+    for _ in range(MOVED_TRIES):
+        base = {"old_release": state.current, "new_release": release.release_id}
+        done = _unchanged(run, release, state, repair=True)
+        if done is not None:
+            return done
+        state = run.read_state(full=True)    # the preflight facts, only when something will change
+        base["old_release"] = state.current
+        problems = preflight(state, run, run.spec.min_free_disk_mb)
+        if run.ctx.host_changes:
+            problems += hostchanges.preflight(run.t, run.root, run.spec.project, run.host, release,
+                                              run.ctx.become_password, state.missing_devices)
+        if problems:
+            return run.result(FAILED, running_release=state.current, reason="preflight: " + "; ".join(problems),
+                              **base)
+        holder = run.lock(run.guard_arm(state, release), expect=state.link)
+        if holder is None:
+            return _switch(run, release, state, base)
+        if holder != MOVED:
+            return run.result(LOCKED, running_release=state.current, reason=_locked_by(holder, run.ctx.controller),
+                              **base)
+        # another run switched the robot while this one waited for its lock: decide again on
+        # what runs now (going back on failure to what it left, never to what it replaced)
+        run.ctx.progress(run.host.name, "another run switched this robot meanwhile: reading its state again")
+        state = run.read_state(full=False)
+    return run.result(LOCKED, running_release=state.current, reason=f"other runs switched this robot {MOVED_TRIES} "
+                      "times while this one waited for its lock; run apply again when they are done", **base)
 
 
 def _switch(run: RobotRun, release: RenderedRelease, state: RobotState, base: dict) -> HostResult:
@@ -688,6 +711,8 @@ def rollback_host(ctx: RunContext, host: Host, to_version: str | None = None,
         run.close()
 
 
+MOVED = "\x00moved"   # lock(): another run switched the robot since its state was read (not a holder)
+MOVED_TRIES = 3
 DAEMON_GONE = "Cannot connect to the Docker daemon"   # the docker CLI's words when dockerd is not there
 
 
@@ -715,7 +740,7 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     target = rollback_target(state, to_version, to_release)
     base = {"old_release": state.current, "new_release": target, "running_release": state.current}
     if holder is not None:
-        return run.result(LOCKED, reason=_locked_by(holder), **base)
+        return run.result(LOCKED, reason=_locked_by(holder, run.ctx.controller), **base)
     if target is None:
         kept = ", ".join(state.releases) or "none"
         what = f"no kept release of version {to_version}" if to_version else "no previous release"

@@ -106,6 +106,7 @@ class RobotState:
     # the last rollback away from it), oldest first: they come before `history`.
     gates: tuple[Mapping[str, Any], ...] = ()
     guard_container: str | None = None   # its docker status ("none": no container); None: not asked
+    link: str = ""                       # `current` as readlink printed it: what lock(expect=) compares
 
     @property
     def gate_history(self) -> tuple[Mapping[str, Any], ...]:
@@ -146,7 +147,8 @@ def parse_state(stdout: str) -> RobotState:
     """The robot's state; what a robot sends that rosdeploy never writes (corrupt after a power
     loss, or hostile) reads as absent or unreadable, never as an error of the whole command."""
     s = parse_sections(stdout)
-    link = s.get("current", "").strip()
+    raw = s.get("current", "").rstrip("\n")
+    link = raw.strip()
     releases = _releases(s.get("releases"))
     current = _current(link, s.get("dir", "").strip(), releases)
     docker = s.get("docker", "").strip()
@@ -170,7 +172,7 @@ def parse_state(stdout: str) -> RobotState:
         guard=parse_guard(s.get("guard-acting"), acting=True) or parse_guard(s.get("guard")),
         clock=digits(s.get("clock")),
         boot=s.get("boot", "").strip(),
-        host_files=_host_files(s["hostfiles"]) if "hostfiles" in s else None)
+        host_files=_host_files(s["hostfiles"]) if "hostfiles" in s else None, link=raw)
 
 
 def _objects(text: str | None) -> tuple[Mapping[str, Any], ...]:

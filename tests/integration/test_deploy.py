@@ -9,6 +9,7 @@ import json
 import os
 import shlex
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -208,6 +209,19 @@ def test_locked_robot_is_not_deployed_twice(fleet, fleet_file: Path) -> None:
     assert seen["state"] == "LOCKED" and "alice@ops" in seen["reason"], seen
     broke = deploy(fleet_file, "--limit", "robot1", "--break-lock")
     assert broke.host("robot1")["outcome"] == "deployed"
+    # Two controllers: B waits for A's lock. B read robot1 before A switched it, and must start
+    # from what A left (its way back on failure, its guard's `previous`), not from what it read.
+    shell = RobotShell(fleet, "robot1")
+    a = subprocess.Popen([sys.executable, "-m", "rosdeploy", "--json", "apply", str(fleet_file), "--yes", "--limit",
+                          "robot1", "--version", "1.1.0"], stdout=subprocess.PIPE, text=True)
+    end = time.monotonic() + 30
+    while not shell.run("test -d ~/rosdeploy/demo/.lock && echo held || true").strip() and time.monotonic() < end:
+        time.sleep(0.1)
+    b = deploy(fleet_file, "--limit", "robot1", "--version", "1.0.0", "--lock-wait", "60s")
+    a_out, _ = a.communicate(timeout=120)
+    a_new = next(h for h in json.loads(a_out)["hosts"] if h["host"] == "robot1")["new_release"]
+    assert b.host("robot1")["outcome"] == "deployed" and b.host("robot1")["old_release"] == a_new, b.stdout
+    assert shell.history()[-1]["from"] == a_new and shell.current() == broke.host("robot1")["new_release"]
 
 
 def _lock_robot1_as(pid: int) -> None:

@@ -360,6 +360,22 @@ def wait_old_stopped(robot: str, old: str, problems: list[str]) -> None:
     problems.append(f"{old}'s containers never stopped: the rollback did not switch")
 
 
+def wait_running(robot: str, release: str, seconds: float) -> bool:
+    """Until every project container runs from `release` (looked at through docker exec: the
+    robot's SSH link may be cut)."""
+    fmt = "{{.Label \"com.docker.compose.project.working_dir\"}} {{.State}}"
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        ps = simulator.robot_exec(robot, ["docker", "ps", "-a", "--filter", "label=com.docker.compose.project=demo",
+                                          "--format", fmt], timeout=30)
+        rows = [line.split() for line in ps.stdout.splitlines() if line.strip()]
+        if ps.returncode == 0 and rows and all(d.rstrip("/").endswith(f"/releases/{release}") and state == "running"
+                                               for d, state in rows):
+            return True
+        time.sleep(0.5)
+    return False
+
+
 def rollback_case(fleet, fleet_file: Path, robot: str, fault: str) -> tuple[str, str, str, str]:
     """`rosdeploy rollback` on one robot, the fault put in once the old containers stopped."""
     problems: list[str] = []
@@ -377,6 +393,12 @@ def rollback_case(fleet, fleet_file: Path, robot: str, fault: str) -> tuple[str,
         ctl.send_signal(signal.SIGKILL)
     else:
         (simulator.cut if fault == "cut" else simulator.reboot)(robot)
+    # the brake finishes its start by itself, its controller or link gone: the robot runs its
+    # target long before the guard's deadline (it ran nothing until then, when a closed channel
+    # killed the switch after it had stopped the old release)
+    if fault != "reboot" and not wait_running(robot, target, RB_TIMEOUT):
+        problems.append(f"{target} was not running {RB_TIMEOUT} s after the fault: the switch stopped with its "
+                        "controller")
     try:
         ctl.wait(timeout=120)
     except subprocess.TimeoutExpired:

@@ -524,3 +524,21 @@ def test_state_sends_the_last_history_lines_and_the_older_ones_a_rollback_needs(
     sections = commands.parse_sections(run_local(commands.state("~/r", "demo", ()), tmp_path).stdout.decode())
     assert [json.loads(x) for x in sections["history"].splitlines()] == lines[-50:]
     assert [json.loads(x) for x in sections["gates"].splitlines()] == [lines[1]], "kept releases' lines only"
+
+
+def test_the_brake_finishes_its_start_when_its_channel_closes(tmp_path: Path) -> None:
+    """The controller (or its link) died while the brake stopped what ran: the channel is gone,
+    and compose's first line of output used to kill the script there (SIGPIPE), leaving the
+    robot running nothing until the guard's deadline."""
+    env, log = fake_docker(tmp_path)
+    docker = tmp_path / "bin/docker"
+    docker.write_text(docker.read_text().replace(
+        '#!/bin/sh\n', '#!/bin/sh\n[ "$1" != stop ] || sleep 0.5\n'
+                       '[ "$1" != compose ] || echo " Container demo-driver-1  Created"\n', 1))
+    cmd = commands.up("~/r", "demo", "1.0.0-x", "v2", together=True)
+    brake = subprocess.Popen(["sh", "-c", cmd.wire()], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    brake.stdout.close()                                   # the channel closes while `docker stop` runs
+    brake.stderr.close()
+    brake.wait(timeout=20)
+    calls = log.read_text().splitlines()
+    assert "start c1" in calls and "start c2" in calls, calls

@@ -283,8 +283,9 @@ class LockHeld:
 
     def run(self, command):
         from rosdeploy.transport import Result
-        self.calls.append(command.argv[-1])             # the dead run id the call names ("" for none)
-        if command.argv[-1] == self.holder["run"]:
+        dead = command.argv[8]                          # sh -c BODY PROG root project owner break DEAD
+        self.calls.append(dead)                         # the dead run id the call names ("" for none)
+        if dead == self.holder["run"]:
             return Result("lock", "locked\n", "", 0, 0.0)
         return Result("lock", "held " + json.dumps(self.holder), "", 3, 0.0)
 
