@@ -5,6 +5,7 @@ to guess which kind of failure it is looking at.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -20,6 +21,9 @@ EXIT_INTERRUPTED = 130
 # key the message names. Values were quoted whole, so a 5,000-character `window.tz` or `--limit`
 # made a message (and a --json document) of several KB.
 SHOWN_CHARS = 100
+# A path in a message: real ones are far shorter; a 100 KB one was echoed whole (the JSON
+# document's `file` field still holds it whole, once).
+SHOWN_PATH = 400
 
 
 @dataclass(frozen=True)
@@ -34,9 +38,22 @@ class Problem:
     rule: str = ""           # check rule id, e.g. "image-unversioned"
 
     def __str__(self) -> str:
-        where = f"{self.file}:{self.line}" if self.line else self.file
+        """One line: a file name or value with a newline (`validate $'a\\nerror: b.yml'`) must not
+        print a line that reads as another error; its control characters are shown escaped."""
+        file = self.file
+        if len(file) > SHOWN_PATH:
+            file = f"{file[:SHOWN_PATH]}... ({len(file)} characters)"
+        where = f"{file}:{self.line}" if self.line else file
         text = f"{self.key}: {self.message}" if self.key else self.message
-        return f"{where}: {text}" if where else text   # no file (a registry, a flag): no empty prefix
+        return one_line(f"{where}: {text}" if where else text)   # no file (a registry, a flag): no empty prefix
+
+
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+
+
+def one_line(text: str) -> str:
+    """`text` with its control characters escaped (`\\n`, `\\x1b`): one line, as output.one_line."""
+    return _CONTROL.sub(lambda m: repr(m[0])[1:-1], text)
 
 
 def shown(value: object, limit: int = SHOWN_CHARS) -> str:

@@ -20,12 +20,14 @@ import threading
 from typing import Any, Iterable, Sequence, TextIO
 
 MASK = "********"
+LONG_SECRET = 8     # characters from which a secret is masked inside words too (Output.masked)
 
 
 class Output:
     def __init__(self, stdout: TextIO | None = None, stderr: TextIO | None = None,
-                 as_json: bool = False, color: bool | str | None = None) -> None:
-        """`color`: "auto" (or None), "always", "never", or a bool for both streams."""
+                 as_json: bool = False, color: bool | str | None = None, hold: bool = False) -> None:
+        """`color`: "auto" (or None), "always", "never", or a bool for both streams. `hold`: the
+        JSON document waits for finish(), which adds the exit code (the CLI's main())."""
         self.stdout = stdout or sys.stdout
         self.stderr = stderr or sys.stderr
         self.as_json = as_json
@@ -35,8 +37,11 @@ class Output:
         # A question needs a person at the keyboard, not a terminal on stdout: `apply F | tee log`
         # and `--json apply F > out.json`, typed at a terminal, ask on stderr.
         self.can_ask = _isatty(sys.stdin)
-        self.documented = False          # the one JSON document of this run was written
+        self.documented = False          # the one JSON document of this run was written (or held)
+        self.hold = hold
+        self._held: dict | None = None
         self._secrets: set[str] = set()
+        self._pattern: re.Pattern[str] | None = None
         self._lock = threading.Lock()   # progress lines come from many robot threads
         self._live: list[str] = []      # lines drawn at the bottom of the terminal (see live)
 
@@ -47,14 +52,25 @@ class Output:
 
     # --- secrets --------------------------------------------------------------
     def mask(self, secrets: Iterable[str]) -> None:
-        # Short values would mask innocent text everywhere ("1", "on"); vault
-        # values that short are not secrets worth the name, and check warns about them.
+        # Shorter than 4 characters ("1", "on"): not masked, it would mask innocent text everywhere;
+        # check warns about vault values that short.
         self._secrets.update(s for s in secrets if s and len(s) >= 4)
+        self._pattern = None
 
     def masked(self, text: str) -> str:
-        for secret in sorted(self._secrets, key=len, reverse=True):
-            text = text.replace(secret, MASK)
-        return text
+        """Every secret replaced. One of LONG_SECRET characters or more anywhere: it is no word of
+        ours. A shorter one only where it stands as a whole word, not inside a word or a path
+        (`_`, `-`, `.`, `/` join them; a full stop ends a word): masked inside them it
+        garbled them, and gave it away: password `wrong` made "cannot decrypt: ******** vault
+        password (--vault-password-file case2/********pw)". A short secret equal to a whole word
+        of a message is still masked there; a secret that short is a weak one (check warns)."""
+        if not self._secrets:
+            return text
+        if self._pattern is None:
+            parts = [re.escape(s) if len(s) >= LONG_SECRET else rf"(?<![\w./-]){re.escape(s)}(?![\w/-]|\.\w)"
+                     for s in sorted(self._secrets, key=len, reverse=True)]
+            self._pattern = re.compile("|".join(parts))
+        return self._pattern.sub(MASK, text)
 
     # --- writing --------------------------------------------------------------
     def line(self, text: str = "") -> None:
@@ -73,7 +89,26 @@ class Output:
         self._write(self.stderr, _paint(text, "yellow", self.color_err))
 
     def document(self, data: Any) -> None:
-        """The one JSON document of a --json run."""
+        """The one JSON document of a --json run; held until finish() when `hold` is set."""
+        if self.hold and isinstance(data, dict):
+            self._held = dict(data)
+            self.documented = True
+            return
+        self._write_document(data)
+
+    def amend(self, fields: dict) -> None:
+        """Add to the held document (a failure after the command built it: its error)."""
+        if self._held is not None:
+            self._held.update(fields)
+
+    def finish(self, code: int) -> None:
+        """Write the held document with `ok` and `exit_code`: every document carries them, a
+        report that found a robot unreachable (exit 3) included, so CI reads one field."""
+        if self._held is not None:
+            held, self._held = self._held, None
+            self._write_document({**held, "ok": code == 0, "exit_code": code})
+
+    def _write_document(self, data: Any) -> None:
         text = json.dumps(data, indent=2, sort_keys=True, default=str)
         if "\\udc" in text:    # a non-UTF-8 byte from argv or a file name: a lone surrogate, not Unicode
             text = json.dumps(_unicode(data), indent=2, sort_keys=True, default=str)
@@ -176,10 +211,11 @@ def _isatty(stream: TextIO) -> bool:
 
 
 def use_color(stream: TextIO, mode: bool | str | None = "auto") -> bool:
-    """Colour for one stream: --color always/never wins; else NO_COLOR (any value) turns it off,
-    FORCE_COLOR (any value but empty or 0) on, and otherwise only a terminal gets it. NO_COLOR
-    beats FORCE_COLOR, as in CPython's own REPL and tracebacks: escape codes in a log file are
-    the worse mistake."""
+    """Colour for one stream: --color always/never wins; else NO_COLOR (any non-empty value: an
+    empty one is ignored, as no-color.org says) turns it off, FORCE_COLOR (any value but empty or
+    0: `FORCE_COLOR=0` is off, as in Node's supports-color and most tools that read it) on, and
+    otherwise only a terminal gets it. NO_COLOR beats FORCE_COLOR, as in CPython's own REPL and
+    tracebacks: escape codes in a log file are the worse mistake."""
     if isinstance(mode, bool):
         return mode
     if mode in ("always", "never"):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+from datetime import datetime, timezone
 from dataclasses import dataclass
 from typing import Callable, Mapping
 
@@ -101,5 +102,28 @@ def describe(holder: str | Mapping | None) -> str:
             return holder.strip() or "an unknown run"
     if not isinstance(owner, Mapping):
         return str(holder)
-    details = [f"{k} {owner[k]}" for k in ("run", "pid", "since") if owner.get(k) not in (None, "")]
-    return f"{owner.get('by') or 'an unknown user'}" + (f" ({', '.join(details)})" if details else "")
+    # A record is any JSON a robot holds: a field of the wrong type is left out, never printed raw
+    # (`locked by {'user': 'alice'}`).
+    by = owner.get("by")
+    fields = {"run": _text(owner.get("run")), "pid": _number(owner.get("pid")), "since": _time(owner.get("since"))}
+    details = [f"{k} {v}" for k, v in fields.items() if v]
+    return (by if isinstance(by, str) and by.strip() else "an unknown user") + \
+        (f" ({', '.join(details)})" if details else "")
+
+
+def _text(value: object) -> str:
+    return value if isinstance(value, str) else ""
+
+
+def _number(value: object) -> str:
+    return str(value) if type(value) is int else ""
+
+
+def _time(value: object) -> str:
+    """An ISO time as written; an epoch (seconds) as ISO time in UTC."""
+    if type(value) in (int, float):
+        try:
+            return datetime.fromtimestamp(value, timezone.utc).isoformat(timespec="seconds")  # type: ignore[arg-type]
+        except (OverflowError, OSError, ValueError):
+            return ""
+    return _text(value)

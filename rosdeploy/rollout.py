@@ -11,7 +11,7 @@ import math
 import queue
 import threading
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, TimeoutError
 from dataclasses import replace
 from typing import Callable, Sequence, TypeVar
 
@@ -19,49 +19,53 @@ from rosdeploy.deploy import RunContext, apply_host, precheck_host, rollback_hos
 from rosdeploy.model import Host, RenderedRelease, RolloutPolicy
 from rosdeploy.pending import PENDING_OUTCOMES, counts_as_failure, next_try
 from rosdeploy.results import DEPLOYED, SKIPPED, UNCHANGED, FleetResult, HostResult
-from rosdeploy.transport import Handoff, Transport
+from rosdeploy.errors import ConnectError
+from rosdeploy.transport import Handoff, SSHOptions, Transport
 
 T = TypeVar("T")
 
 
 def parallel(hosts: Sequence[Host], work: Callable[[Host], T], forks: int,
-             on_interrupt: Callable[[], None] = lambda: None) -> list[T]:
+             on_interrupt: Callable[[], None] = lambda: None,
+             abandon: Callable[[Host], T | None] = lambda host: None) -> list[T]:
     """Run `work` for every host, at most `forks` at once, results in host order.
 
-    Ctrl-C does not abandon robots mid-step: it calls on_interrupt (which sets
-    the run's cancel flag, so robots not yet started skip) and keeps waiting
-    for the running ones to finish or roll back and release their locks.
+    Ctrl-C does not abandon robots mid-step: it calls on_interrupt (which sets the run's cancel
+    flag, so robots not yet started skip) and keeps waiting for the running ones to finish or
+    roll back and release their locks. A robot for which `abandon` gives a result (its worker
+    never reached it: see Reached) is not waited for: that result stands in, and its worker,
+    a daemon thread, is left to end with the process (connect_timeout may be minutes away).
     """
     if not hosts:
         return []
-    pool = ThreadPoolExecutor(max_workers=max(1, min(forks, len(hosts))), thread_name_prefix="robot")
-    futures: list[Future[T]] = [pool.submit(work, h) for h in hosts]
-    try:
-        return [_wait(f, on_interrupt) for f in futures]
-    finally:
-        pool.shutdown(wait=True)
+    futures = _start(hosts, work, forks, threading.Event())
+    interrupted = threading.Event()     # once, for every robot after it too
+    return [_wait(f, h, on_interrupt, interrupted, abandon) for h, f in zip(hosts, futures, strict=True)]
 
 
-def _wait(future: Future[T], on_interrupt: Callable[[], None]) -> T:
+def _wait(future: Future[T], host: Host, on_interrupt: Callable[[], None], interrupted: threading.Event,
+          abandon: Callable[[Host], T | None]) -> T:
     while True:
+        if interrupted.is_set() and not future.done():
+            stand_in = abandon(host)
+            if stand_in is not None:
+                return stand_in
         try:
-            return future.result()
+            return future.result(timeout=0.1 if interrupted.is_set() else None)
+        except TimeoutError:
+            continue
         except KeyboardInterrupt:
             on_interrupt()
+            interrupted.set()
 
 
-def gather(hosts: Sequence[Host], work: Callable[[Host], T], forks: int) -> list[T]:
-    """Read-only work (status, plan, history) for every host, at most `forks` at once, results in
-    host order. Ctrl-C (or SIGTERM) stops the waiting at once: nothing is being changed on a robot,
-    so a robot's thread still waiting for an answer is a daemon, left to end with the process,
-    and robots not yet started are not started."""
-    if not hosts:
-        return []
+def _start(hosts: Sequence[Host], work: Callable[[Host], T], forks: int, stop: threading.Event) -> list[Future[T]]:
+    """`work` for every host on at most `forks` daemon threads, each result in its Future: a
+    thread pool's threads are joined when the interpreter exits, a daemon is not."""
     todo: queue.SimpleQueue[int] = queue.SimpleQueue()
     for i in range(len(hosts)):
         todo.put(i)
     futures: list[Future[T]] = [Future() for _ in hosts]
-    stop = threading.Event()
 
     def worker() -> None:
         while not stop.is_set():
@@ -77,6 +81,52 @@ def gather(hosts: Sequence[Host], work: Callable[[Host], T], forks: int) -> list
 
     for n in range(max(1, min(forks, len(hosts)))):
         threading.Thread(target=worker, name=f"robot-{n}", daemon=True).start()
+    return futures
+
+
+class Reached:
+    """Which robots a run's workers have reached (connected to). An interrupt abandons a worker
+    still connecting: nothing was changed on its robot, and waiting could take connect_timeout.
+    One that reached its robot is awaited: it may hold the robot's lock mid-switch
+    (RobotRun.locked), which it finishes or rolls back, then releases. A connection that opens
+    after the interrupt is closed at once, so an abandoned worker never goes on to its robot."""
+
+    def __init__(self, ctx: RunContext) -> None:
+        self.cancel = ctx.cancel
+        self._names: set[str] = set()
+        self._lock = threading.Lock()
+        self.ctx = replace(ctx, connect=self._tracked(ctx.connect))
+
+    def _tracked(self, connect: Callable[[Host, SSHOptions], Transport]) -> Callable[[Host, SSHOptions], Transport]:
+        def tracked(host: Host, options: SSHOptions) -> Transport:
+            link = connect(host, options)
+            with self._lock:       # checked and marked at once: the interrupt reads after it sets cancel
+                if not self.cancel.is_set():
+                    self._names.add(host.name)
+                    return link
+            link.close()
+            raise ConnectError(host.name, "interrupted while connecting: nothing was changed")
+        return tracked
+
+    def abandon(self, host: Host) -> HostResult | None:
+        """For parallel(): a robot not reached is reported not started; None (wait) for one reached."""
+        with self._lock:
+            if host.name in self._names:
+                return None
+        self.ctx.progress(host.name, SKIPPED)
+        return HostResult(host.name, SKIPPED, reason="interrupted before this robot was reached: nothing was "
+                                                     "changed on it")
+
+
+def gather(hosts: Sequence[Host], work: Callable[[Host], T], forks: int) -> list[T]:
+    """Read-only work (status, plan, history) for every host, at most `forks` at once, results in
+    host order. Ctrl-C (or SIGTERM) stops the waiting at once: nothing is being changed on a robot,
+    so a robot's thread still waiting for an answer is a daemon, left to end with the process,
+    and robots not yet started are not started."""
+    if not hosts:
+        return []
+    stop = threading.Event()
+    futures = _start(hosts, work, forks, stop)
     try:
         return [f.result() for f in futures]
     except KeyboardInterrupt:
@@ -153,7 +203,9 @@ def apply_fleet(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Rend
         handoff.close()
     if until is not None and not aborted:
         aborted = _converge(ctx, hosts, releases, policy, done, until, notify)
-    done.extend(_skipped(waves, done, "rollout stopped before this robot's wave"))
+    stopped = "interrupted before this robot's wave: nothing was changed on it" if ctx.cancel.is_set() else \
+        "rollout stopped before this robot's wave"
+    done.extend(_skipped(waves, done, stopped))
     back = _fleet_rollback(ctx, hosts, done, policy, notify) if aborted and ctx.spec.rollback.fleet else ()
     return FleetResult("apply", tuple(done), aborted=aborted, fleet_rollback=back,
                        interrupted=ctx.cancel.is_set(), seconds=time.monotonic() - started, run_id=ctx.run_id)
@@ -180,7 +232,8 @@ def _precheck(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Render
             link = None
         return result, link
 
-    checked = parallel(hosts, ask, policy.forks, ctx.cancel.set)
+    # read-only: an interrupt waits for none of them (their wave, which will not start, decides)
+    checked = parallel(hosts, ask, policy.forks, ctx.cancel.set, abandon=lambda host: (None, None))
     done = [r for r, _ in checked if r is not None and r.outcome == UNCHANGED]
     if done:
         notify("unchanged", {"hosts": [r.host for r in done]})
@@ -198,6 +251,9 @@ def _precheck(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Render
 def _waves(ctx: RunContext, waves: list[list[Host]], releases: dict[str, RenderedRelease], policy: RolloutPolicy,
            notify: Notify, done: list[HostResult], known: dict[str, HostResult], until: float | None) -> bool:
     """Every wave in turn, each robot's result added to `done`; True when a wave's failures stop it."""
+    reach = Reached(ctx)
+    ctx = reach.ctx
+
     def work(host: Host) -> HostResult:
         if host.name in known:
             ctx.progress(host.name, known[host.name].outcome)
@@ -209,7 +265,7 @@ def _waves(ctx: RunContext, waves: list[list[Host]], releases: dict[str, Rendere
             if ctx.cancel.is_set():
                 break
             notify("wave", {"number": number, "of": len(waves), "hosts": [h.name for h in wave]})
-            results = parallel(wave, work, policy.forks, ctx.cancel.set)
+            results = parallel(wave, work, policy.forks, ctx.cancel.set, reach.abandon)
             done.extend(_with_wave(r, number) for r in results)
             failed = [r for r in results if counts_as_failure(r, policy.count_busy, until is not None)]
             budget = allowed_failures(policy.max_fail, len(wave))
@@ -251,8 +307,7 @@ def _converge(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Render
         if ctx.cancel.is_set():
             return False
         batch = [i for i in waiting if due[done[i].host] <= time.monotonic()]
-        results = parallel([by_name[done[i].host] for i in batch],
-                           lambda h: apply_host(ctx, h, releases[h.name]), policy.forks, ctx.cancel.set)
+        results = _apply_each(ctx, [by_name[done[i].host] for i in batch], releases, policy.forks)
         for i, result in zip(batch, results, strict=True):
             due.pop(done[i].host)
             tried = f"{done[i].outcome}: {done[i].reason}"
@@ -260,6 +315,13 @@ def _converge(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Render
         if _over_budget({done[i].wave for i in batch}, done, policy, notify):
             return True
     return False
+
+
+def _apply_each(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, RenderedRelease],
+                forks: int) -> list[HostResult]:
+    reach = Reached(ctx)
+    return parallel(hosts, lambda h: apply_host(reach.ctx, h, releases[h.name]), forks, ctx.cancel.set,
+                    reach.abandon)
 
 
 def _over_budget(waves: set, done: list[HostResult], policy: RolloutPolicy, notify: Notify) -> bool:
@@ -301,6 +363,8 @@ def rollback_fleet(ctx: RunContext, hosts: Sequence[Host], forks: int, to_versio
     started = time.monotonic()
     # Ctrl-C or SIGTERM: robots mid-switch finish it (a brake is not left half-applied), robots
     # not yet started are skipped, and the run says it was interrupted
-    results = parallel(hosts, lambda h: rollback_host(ctx, h, to_version=to_version), forks, ctx.cancel.set)
+    reach = Reached(ctx)
+    results = parallel(hosts, lambda h: rollback_host(reach.ctx, h, to_version=to_version), forks, ctx.cancel.set,
+                       reach.abandon)
     return FleetResult("rollback", tuple(results), seconds=time.monotonic() - started, run_id=ctx.run_id,
                        interrupted=ctx.cancel.is_set())

@@ -504,7 +504,8 @@ def _run_password_script(path: str) -> bytes:
         stdout, stderr = out.read(), err.read()
     if proc.returncode != 0:
         tail = stderr.decode("utf-8", "replace").strip()[-200:]
-        raise _error(path, f"the vault password script exited {proc.returncode}: {tail}")
+        said = f": {tail}" if tail else " and printed nothing on stderr: run it by hand to see why"
+        raise _error(path, f"the vault password script exited {proc.returncode}{said}")
     return stdout
 
 

@@ -68,33 +68,48 @@ def cmd_version(args: argparse.Namespace, out: Output) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     with _stopped_by_signals(), _guarded_streams() as streams:
-        code = _main(list(sys.argv[1:] if argv is None else argv))
-    _say_lost_output(streams)
-    return code
+        code, acts = _main(list(sys.argv[1:] if argv is None else argv))
+        streams[0].flush()      # what is still buffered (argparse's --help): its failure counts too
+    return _after_lost_output(streams, code, acts)
 
 
-def _main(argv: list[str]) -> int:
+def _main(argv: list[str]) -> tuple[int, bool]:
+    """The exit code, and whether the command acts (on robots or files): see _after_lost_output."""
     try:
         args = build_parser().parse_args(argv)
+    except SystemExit as exc:       # --help, printed by argparse
+        return (EXIT_OK if exc.code is None else exc.code if isinstance(exc.code, int) else EXIT_INPUT), False
     except VersionAsked:
-        return cmd_version(argparse.Namespace(), Output(as_json=_given(argv, "--json") is not None))
+        out = _early_output(argv)
+        return _finish(out, cmd_version(argparse.Namespace(), out)), False
     except UsageError as exc:
-        # The options were not parsed: read the two that shape the error's form from argv.
-        out = Output(as_json=_given(argv, "--json") is not None, color=_given(argv, "--color") or "auto")
+        out = _early_output(argv)
         if not out.as_json:
             out.note(exc.usage.rstrip())
-        return _fail(out, exc)
+        return _finish(out, _fail(out, exc)), False
     except KeyboardInterrupt as exc:    # SIGTERM while the parser was built: nothing was done
-        return _fail(Output(as_json=_given(argv, "--json") is not None), exc)
-    out = Output(as_json=args.json, color=args.color)
+        out = _early_output(argv)
+        return _finish(out, _fail(out, exc)), False
+    out = Output(as_json=args.json, color=args.color, hold=True)
     try:
-        return int(args.func(args, out) or 0)
+        code = int(args.func(args, out) or 0)
     except Exception as exc:
         if args.debug and not isinstance(exc, RosdeployError):
             traceback.print_exc()
-        return _fail(out, exc, args.debug)
+        code = _fail(out, exc, args.debug)
     except KeyboardInterrupt as exc:
-        return _fail(out, exc)
+        code = _fail(out, exc)
+    return _finish(out, code), bool(getattr(args, "acts", False))
+
+
+def _early_output(argv: Sequence[str]) -> Output:
+    """The options were not parsed: read the two that shape the output's form from argv."""
+    return Output(as_json=_given(argv, "--json") is not None, color=_given(argv, "--color") or "auto", hold=True)
+
+
+def _finish(out: Output, code: int) -> int:
+    out.finish(code)
+    return code
 
 
 class Stopped(KeyboardInterrupt):
@@ -137,6 +152,8 @@ class GuardedStream:
         self.lost: OSError | None = None
 
     def write(self, text: str) -> int:
+        if self.stream is None and self.lost is None and text:    # started with the stream closed (`>&-`)
+            self.lost = OSError(errno.EBADF, os.strerror(errno.EBADF))
         if self.stream is not None and self.lost is None:
             try:
                 return self.stream.write(text)
@@ -182,18 +199,27 @@ def _guarded_streams() -> Iterator[tuple[GuardedStream, GuardedStream]]:
         sys.stdout, sys.stderr = streams[0].stream, streams[1].stream
 
 
-def _say_lost_output(streams: tuple[GuardedStream, GuardedStream]) -> None:
+def _after_lost_output(streams: tuple[GuardedStream, GuardedStream], code: int, acts: bool) -> int:
     """Output that could not be written is said once on stderr, when it can be, unless the
-    reader of a pipe simply left (`| head`): that is the reader's choice, not a failure."""
+    reader of a pipe simply left (`| head`): that is the reader's choice, not a failure.
+    A command that acts (apply, rollback, render, vault encrypt...) keeps its exit code: what it
+    did is its product, and says how it went. For the others the output IS the product
+    (`completion bash > FILE` on a full disk, `--json check`, `status`): a success whose output
+    was lost is exit 1, or an install line would leave an empty file behind a zero exit."""
     out, err = streams
-    if out.lost is None or out.lost.errno == errno.EPIPE or err.lost is not None or err.stream is None:
-        return
-    try:
-        err.stream.write(f"rosdeploy: standard output could not be written ({out.lost.strerror or out.lost}); "
-                         "the command ran to its end, its exit code says how it went\n")
-        err.stream.flush()
-    except OSError:
-        pass
+    if out.lost is None or out.lost.errno == errno.EPIPE:
+        return code
+    failed = code == EXIT_OK and not acts
+    if err.lost is None and err.stream is not None:
+        tail = ("the output is missing or incomplete" if failed else
+                "the command ran to its end, its exit code says how it went")
+        try:
+            err.stream.write(f"rosdeploy: standard output could not be written "
+                             f"({out.lost.strerror or out.lost}); {tail}\n")
+            err.stream.flush()
+        except OSError:
+            pass
+    return EXIT_INTERNAL if failed else code
 
 
 def _fail(out: Output, exc: BaseException, debug: bool = False) -> int:
@@ -202,9 +228,12 @@ def _fail(out: Output, exc: BaseException, debug: bool = False) -> int:
     lines = [_text(p) for p in problems] or [_message(exc, debug)]
     for line in lines:
         out.error(f"error: {line}" if kind in ("usage", "input", "error") else line)
-    if out.as_json and not out.documented:
-        out.document({"ok": False, "exit_code": code, "error": {
-            "kind": kind, "message": "\n".join(lines), "problems": [_problem_json(p) for p in problems]}})
+    if out.as_json:
+        error = {"kind": kind, "message": "\n".join(lines), "problems": [_problem_json(p) for p in problems]}
+        if out.documented:      # the command built its document first: it keeps it, with the error
+            out.amend({"error": error})
+        else:
+            out.document({"ok": False, "exit_code": code, "error": error})
     return code
 
 
@@ -248,14 +277,17 @@ def _problem_json(p: Problem) -> dict[str, Any]:
 
 def _given(argv: Sequence[str], flag: str) -> str | None:
     """A global option as argparse would have read it, for an error raised before it could:
-    abbreviations (`--js`) and `--color=never` count, words after `--` do not. Its value ("" for
-    a flag without one), or None when absent."""
+    abbreviations (`--js`) and `--color=never` count, words after `--` do not, and the last one
+    given wins (`--color always --color never` is never). Its value ("" for a flag without
+    one), or None when absent."""
+    found = None
     for i, word in enumerate(argv):
         if word == "--":
-            return None
+            break
         name, eq, value = word.partition("=")
         if len(name) >= 3 and flag.startswith(name) and name.startswith("--"):
             if eq or flag != "--color":
-                return value
-            return argv[i + 1] if i + 1 < len(argv) else ""
-    return None
+                found = value
+            else:
+                found = argv[i + 1] if i + 1 < len(argv) else ""
+    return found

@@ -19,7 +19,8 @@ COLOR_MODES = ("auto", "always", "never")
 # shows them all (tests/unit/test_cli.py checks both against this).
 EXIT_CODES: dict[int, str] = {
     EXIT_OK: "success",
-    EXIT_INTERNAL: "internal error: a bug in rosdeploy (--debug shows the traceback)",
+    EXIT_INTERNAL: "internal error: a bug in rosdeploy (--debug shows the traceback); or the output of a "
+                   "command that only prints could not be written (a full disk)",
     EXIT_INPUT: "input error: fleet file, inventory, template, vault or usage; nothing was touched",
     EXIT_PARTIAL: "some robots failed, were rolled back, locked or unreachable (within max_fail)",
     EXIT_ABORTED: "a wave exceeded max_fail: the rollout stopped, later waves skipped",
@@ -70,14 +71,35 @@ class Parser(argparse.ArgumentParser):
             message += f"; {hint}" if hint else ""
         raise UsageError(self, message)
 
+    def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
+        if args and str(args[0]).startswith("-") and kwargs.get("action", "store") == "store" \
+                and kwargs.get("nargs") is None:
+            kwargs["action"] = Once
+        return super().add_argument(*args, **kwargs)
+
     def parse_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> Any:  # type: ignore[override]
         """argparse blames words no command took on the root parser (`rosdeploy: unrecognized
         arguments`): blame the command they were given to, whose --help lists what it takes."""
-        parsed, extra = self.parse_known_args(args, namespace)
+        try:
+            parsed, extra = self.parse_known_args(args, namespace)
+        except UsageError as exc:
+            raise self._with_unknown(exc, list(args or ())) from None
         if extra:
             owner: Parser = getattr(parsed, "command_parser", self)
             owner.error(f"unrecognized arguments: {' '.join(extra)}")
         return parsed
+
+
+    def _with_unknown(self, exc: UsageError, argv: list[str]) -> UsageError:
+        """`rosdeploy -x`: argparse said only that COMMAND is missing; name the option it did not know."""
+        if "required: COMMAND" not in exc.message:
+            return exc
+        known = self._option_string_actions
+        unknown = [w for w in argv if w.startswith("-") and w != "--"
+                   and not any(o.startswith(w.split("=", 1)[0]) for o in known)]
+        if unknown:
+            exc.message = exc.message.replace(" (see", f"; unrecognized arguments: {' '.join(unknown)} (see", 1)
+        return exc
 
 
 def epilog(codes: Sequence[int], example: str, meanings: dict[int, str] | None = None) -> str:
@@ -177,23 +199,39 @@ def path_arg(text: str) -> str:
     return expanded
 
 
-class _Once(argparse.Action):
-    """-i given once: a second one silently replaced the first, where Ansible reads both."""
+class Once(argparse.Action):
+    """An option with one value, given once: argparse silently kept the last one
+    (`apply F --version 1 --version 2` deployed 2, `--limit a --limit b` targeted b), where
+    Ansible reads -i twice as two inventories. Every single-value option of every command is
+    one (Parser.add_argument); the global options are not (the last --color wins, as argparse's)."""
+
+    why = "give it once"
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
-        if getattr(namespace, self.dest, None) is not None:
-            raise argparse.ArgumentError(self, "given twice: rosdeploy reads one inventory, a file or a folder "
-                                               "(whose files it merges, as Ansible does): put them in one folder")
+        # a set of what was given, not the value: a default (--lock-wait 0, -n 10) is no value given
+        given = namespace.__dict__.setdefault("_given_once", set())
+        if self.dest in given:
+            raise argparse.ArgumentError(self, f"given twice: {self.why}")
+        given.add(self.dest)
         setattr(namespace, self.dest, values)
+
+
+class _OneLimit(Once):
+    why = "give one pattern: join them with `:` (a:b targets both), as Ansible's --limit"
+
+
+class _OneInventory(Once):
+    why = ("rosdeploy reads one inventory, a file or a folder (whose files it merges, as Ansible does): "
+           "put them in one folder")
 
 
 def add_fleet_args(parser: argparse.ArgumentParser, *, limit: bool = True, version: bool = True) -> None:
     parser.add_argument("fleet", type=path_arg, metavar="FLEET", help="the fleet file, e.g. playbooks/warehouse.yml")
-    parser.add_argument("-i", "--inventory", type=path_arg, metavar="PATH", action=_Once,
+    parser.add_argument("-i", "--inventory", type=path_arg, metavar="PATH", action=_OneInventory,
                         help="inventory file or directory (overrides the fleet file's `inventory`)")
     if limit:
-        parser.add_argument("-l", "--limit", metavar="PATTERN",
+        parser.add_argument("-l", "--limit", metavar="PATTERN", action=_OneLimit,
                             help="robots to target, Ansible patterns: names, groups, globs, ~regex, a:b, a:&b, "
                                  "a:!b, @file")
     if version:

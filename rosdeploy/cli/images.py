@@ -7,11 +7,10 @@ from typing import TYPE_CHECKING, Sequence
 
 from rosdeploy.cli.common import add_command, add_fleet_args, path_arg
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
-from rosdeploy.images.refs import human_bytes
-from rosdeploy.model import FleetSpec, Host, RenderedRelease
 from rosdeploy.output import Output
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:   # model.py and images.refs are the handlers' (--help builds this parser)
+    from rosdeploy.model import FleetSpec, Host, RenderedRelease
     from rosdeploy.images.supply import Supply
 
 # rosdeploy.images.bundle and .supply are imported by the handlers: they bring paramiko, and
@@ -28,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_fleet_args(p)
     p.add_argument("--out", required=True, type=path_arg, metavar="FILE",
                    help="the bundle to write (an OCI image layout in a tar)")
-    p.set_defaults(func=cmd_bundle)
+    p.set_defaults(func=cmd_bundle, acts=True)     # its product is the file (_after_lost_output)
 
 
 def add_from_bundle(p: argparse.ArgumentParser) -> None:
@@ -64,6 +63,7 @@ def supply(args: argparse.Namespace, out: Output, spec: FleetSpec, hosts: Sequen
 def cmd_bundle(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.cli.remote import load
     from rosdeploy.images import bundle
+    from rosdeploy.images.refs import human_bytes
 
     project, hosts, releases = load(args, out)
     target = Path(args.out)

@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_fleet_args(p)
     p.add_argument("-o", "--out", required=True, type=path_arg, metavar="DIR",
                    help="folder to write DIR/<robot>/<file> into")
-    p.set_defaults(func=cmd_render)
+    p.set_defaults(func=cmd_render, acts=True)     # its product is the folder (_after_lost_output)
 
     p = add_command(sub, "check", "run the deployment checklist; exit 2 if any error",
                     "Every rule of the ROS 2 deployment checklist over the fleet file, the inventory and each "

@@ -80,12 +80,21 @@ def status_notes(out: Output, rows: Sequence[Any]) -> None:
         if getattr(r, "pending", None):
             p = r.pending
             out.line(f"{r.host}: PENDING {one_line(p['outcome'])} for {one_line(p['version'])} since "
-                     f"{one_line(p['since'])}: {one_line(p['reason'][:160])}")
+                     f"{one_line(p['since'])}: {one_line(_said_once(r.host, p['outcome'], p['reason']))}")
         for lock in getattr(r, "app_lock", None) or ():
             age = lock.get("age")
             out.line(f"{r.host}: app lock {one_line(lock['path'])} held by {one_line(lock['holder'])} "
                      f"since {one_line(lock['since'])}"
                      + (f" ({_age(age)} ago)" if age is not None else ""))
+
+
+def _said_once(host: str, outcome: object, reason: object) -> str:
+    """The reason without the robot's name and the outcome the line says already, capped (not
+    cut at 160 characters: the advice at its end was lost)."""
+    text = str(reason)
+    for said in (f"{host}: ", f"{outcome}: "):
+        text = text[len(said):] if text.startswith(said) else text
+    return text[:600]
 
 
 def _age(seconds: int) -> str:

@@ -55,7 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true",
                    help="switch even when the readiness gate (ready:) or the maintenance window (window:) says no")
     images.add_from_bundle(p)
-    p.set_defaults(func=cmd_apply, pick_up=True)
+    p.set_defaults(func=cmd_apply, pick_up=True, acts=True)
 
     p = add_command(sub, "plan", "show what apply would do, changing nothing",
                     "Per robot: up to date, or the file diffs (secrets masked), the images to pull and the "
@@ -87,7 +87,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a kept version to switch to instead of the previous one")
     p.add_argument("--forks", type=positive_int, metavar="N",
                    help="robots rolled back in parallel (default: all at once)")
-    p.set_defaults(func=cmd_rollback)
+    p.set_defaults(func=cmd_rollback, acts=True)
 
     p = add_command(sub, "history", "each robot's deploy history, newest first",
                     "Each robot's deploys and rollbacks, newest first: time, event, release, result, by whom.",
@@ -301,7 +301,11 @@ def cmd_rollback(args: argparse.Namespace, out: Output) -> int:
 
 
 def _declined(out: Output) -> int:
-    out.error("declined: nothing was done")
+    message = "declined: nothing was done"
+    out.error(message)
+    if out.as_json:     # `--json apply` answered no at a terminal: the document still says so
+        out.document({"ok": False, "exit_code": EXIT_DECLINED,
+                      "error": {"kind": "declined", "message": message, "problems": []}})
     return EXIT_DECLINED
 
 

@@ -203,6 +203,13 @@ def summary(out: Output, result: FleetResult, folder: Path | None) -> None:
     style = "green" if result.ok else "red"
     record = f"record: {folder}" if folder else "no run record: see the warning above"
     out.line(out.paint(f"{result.command}: {tally} in {result.seconds:.1f}s", style) + f"  ({record})")
+    if result.interrupted:
+        # a second rollback would take the robots it finished one release further back
+        todo = ("run `rosdeploy apply` again to finish (robots already on the release are left as they are)"
+                if result.command == "apply" else "see `rosdeploy status`, and roll back the robots it did not "
+                "reach with --limit (a second rollback of the others would go one release further back)")
+        out.line(out.paint(f"{result.command} interrupted: robots mid-switch finished or went back and their locks "
+                           f"were released; robots it did not reach were left as they were: {todo}", "red"))
 
 
 def _row(h: HostResult) -> list[str]:
@@ -211,23 +218,45 @@ def _row(h: HostResult) -> list[str]:
     # An OK outcome's reason is noise, except when a no-op put back host changes (deploy._put_back).
     shown = h.outcome not in OK_OUTCOMES or (h.outcome == UNCHANGED and any(s.name == "host changes" for s in h.steps))
     reason = h.reason if shown else ""
-    return [h.host, str(h.wave or ""), h.outcome, f"{old} -> {now}", f"{h.seconds:.1f}s", reason[:160]]
+    return [h.host, str(h.wave or ""), h.outcome, f"{old} -> {now}", f"{h.seconds:.1f}s", reason[:REASON_CHARS]]
 
 
 def status(out: Output, rows: Sequence[Any]) -> None:
     if out.as_json:
         out.document({"robots": [_plain(r) for r in rows]})
         return
-    table = []
+    table, below = [], []
     for r in rows:
+        why = unreachable(r.host, r.error) if not r.reachable else r.reason
+        if len(why) > WHY_CELL:     # the advice at its end must not be cut: on a line of its own
+            below.append(f"{r.host}: {why}")
+            why = "(below)"
         if not r.reachable:
-            table.append([r.host, "UNREACHABLE", "-", "-", "-", "-", r.error[:120]])
+            table.append([r.host, "UNREACHABLE", "-", "-", "-", "-", why])
             continue
         services = ", ".join(f"{s['service']}:{s['health'] or s['status']}" for s in r.services) or "none"
         drift = "-" if r.drift is None else ("DRIFT" if r.drift else "in sync")
         last = f"{r.deployed_at or '-'} by {r.deployed_by or '-'}"
-        table.append([r.host, r.state, r.version or "-", drift, services, last, r.reason[:160]])
+        table.append([r.host, r.state, r.version or "-", drift, services, last, why])
     out.table(["ROBOT", "STATE", "VERSION", "DRIFT", "SERVICES", "LAST DEPLOY", "WHY"], table)
+    for line in below:
+        out.line(one_line(line))
+
+
+# A WHY longer than this is said below the table, whole: a cell would push the table past any
+# terminal's width, and a cut one lost "Check its ansible_host and ansible_port".
+WHY_CELL = 80
+# A reason from a robot or a record is capped where it is quoted: a hostile robot's megabyte
+# must not flood the report (our own advice is far shorter).
+REASON_CHARS = 600
+
+
+def unreachable(host: str, error: str) -> str:
+    """A robot's connection error said once: `unreachable: …`, without the robot's name that
+    RemoteError puts in front (the line names it already)."""
+    text = error[len(host) + 2:] if error.startswith(f"{host}: ") else error
+    text = text[:REASON_CHARS]
+    return text if text.lower().startswith("unreachable") else f"unreachable: {text}"
 
 
 def plan(out: Output, rows: Sequence[Any]) -> None:
@@ -236,7 +265,7 @@ def plan(out: Output, rows: Sequence[Any]) -> None:
         return
     for r in rows:
         if not r.reachable:
-            out.line(f"{r.host}: UNREACHABLE: {r.error}")
+            out.line(f"{r.host}: {unreachable(r.host, r.error)}")
             continue
         if r.up_to_date:
             put_back = f"; apply puts back host changes that differ on the robot: {', '.join(r.host_drift)}"
@@ -267,7 +296,7 @@ def history(out: Output, rows: Sequence[tuple], limit: int) -> None:
                                  for h, ok, err, entries in rows]})
         return
     for host, ok, err, entries in rows:
-        out.line(out.paint(host, "bold") + ("" if ok else f": UNREACHABLE: {err}")
+        out.line(out.paint(host, "bold") + ("" if ok else f": {unreachable(host, err)}")
                  + (": no deploys yet" if ok and not entries else ""))
         for e in entries[:limit]:
             out.line(_entry_line(e))

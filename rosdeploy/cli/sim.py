@@ -32,14 +32,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                      "use; prints the inventory, known_hosts and key to deploy with.",
                      SIM_CODES, "rosdeploy sim up --robots 3", SIM_MEANINGS)
     up.add_argument("--robots", type=positive_int, default=3, metavar="N", help="number of robots (default 3)")
-    up.set_defaults(func=cmd_up)
+    up.set_defaults(func=cmd_up, acts=True)
 
     down = add_command(actions, "down", "remove the robots and the registry the simulator started",
                        "Remove the robot containers and their volumes, and stop the registry if the simulator "
                        "started it.", SIM_CODES, "rosdeploy sim down --purge", SIM_MEANINGS)
     down.add_argument("--purge", action="store_true",
                       help="also remove the simulator's images, registry data and state dir")
-    down.set_defaults(func=cmd_down)
+    down.set_defaults(func=cmd_down, acts=True)
 
     status = add_command(actions, "status", "list the robots, their addresses and state",
                          "List the simulated robots, their SSH addresses and container state, and whether the "
@@ -58,30 +58,30 @@ def _register_faults(actions: argparse._SubParsersAction) -> None:
     cut.add_argument("robot", metavar="ROBOT", help=ROBOT_HELP)
     cut.add_argument("--for", dest="seconds", type=duration, default=0.0, metavar="DURATION",
                      help="heal by itself after this long (e.g. 2s: a Wi-Fi blip)")
-    cut.set_defaults(func=cmd_fault, fault="cut")
+    cut.set_defaults(func=cmd_fault, fault="cut", acts=True)
     isolate = add_command(actions, "isolate", "cut a robot off from the registry; its SSH link still works",
                           "Drop the robot's traffic to the registry, so pulls fail while SSH works.",
                           SIM_CODES, "rosdeploy sim isolate robot2 --from registry", SIM_MEANINGS)
     isolate.add_argument("robot", metavar="ROBOT", help=ROBOT_HELP)
     isolate.add_argument("--from", dest="target", choices=["registry"], default="registry", metavar="WHAT",
                          help="what the robot loses: registry (the only one so far, the default)")
-    isolate.set_defaults(func=cmd_fault, fault="isolate")
+    isolate.set_defaults(func=cmd_fault, fault="isolate", acts=True)
     heal = add_command(actions, "heal", "undo `sim cut` and `sim isolate` on a robot",
                        "Restore a robot's SSH link and its way to the registry.", SIM_CODES,
                        "rosdeploy sim heal robot2", SIM_MEANINGS)
     heal.add_argument("robot", metavar="ROBOT", help=ROBOT_HELP)
-    heal.set_defaults(func=cmd_fault, fault="heal")
+    heal.set_defaults(func=cmd_fault, fault="heal", acts=True)
     busy = add_command(actions, "busy", "set the demo driver's /robot_mode to BUSY (on) or IDLE (off)",
                        "Set the demo driver's /robot_mode topic to BUSY (on) or IDLE (off).", SIM_CODES,
                        "rosdeploy sim busy robot2 on", SIM_MEANINGS)
     busy.add_argument("robot", metavar="ROBOT", help=ROBOT_HELP)
     busy.add_argument("state", choices=["on", "off"], metavar="on|off", help="on: BUSY; off: IDLE again")
-    busy.set_defaults(func=cmd_fault, fault="busy")
+    busy.set_defaults(func=cmd_fault, fault="busy", acts=True)
     reboot = add_command(actions, "reboot", "restart a robot (its engine, sshd and containers) and wait for it",
                          "Restart a robot (its engine, sshd and containers) and wait until it answers again.",
                          SIM_CODES, "rosdeploy sim reboot robot2", SIM_MEANINGS)
     reboot.add_argument("robot", metavar="ROBOT", help=ROBOT_HELP)
-    reboot.set_defaults(func=cmd_fault, fault="reboot")
+    reboot.set_defaults(func=cmd_fault, fault="reboot", acts=True)
 
 
 def cmd_fault(args: argparse.Namespace, out: Output) -> int:

@@ -10,13 +10,19 @@ import subprocess
 import sys
 from typing import TYPE_CHECKING
 
-from rosdeploy import vault as vaultlib
 from rosdeploy.cli.common import add_command, path_arg
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem, VaultError, shown
 from rosdeploy.output import Output
 
 if TYPE_CHECKING:
+    from rosdeploy import vault as vaultlib
     from rosdeploy.project import Project
+
+# rosdeploy.vault (and the YAML reader it brings, ~17 ms) is imported by the handlers: every
+# command, --help and TAB completion included, builds this parser. Its variables' names, for the
+# help (test_cli_seventh checks they are the module's):
+ENV_PASSWORD_FILE = "ROSDEPLOY_VAULT_PASSWORD_FILE"
+ENV_PASSWORD = "ROSDEPLOY_VAULT_PASSWORD"
 
 
 CODES = (EXIT_OK, EXIT_INPUT, EXIT_INTERNAL)   # a wrong password or a damaged file is an input error
@@ -48,7 +54,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         add_vault_options(action)
         if name in ("encrypt", "edit"):
             _format_args(action)
-        action.set_defaults(func=handler)
+        # encrypt, decrypt, edit: their product is the file; view's is its output (_after_lost_output)
+        action.set_defaults(func=handler, acts=name != "view")
     string = add_command(actions, "encrypt-string", "print `NAME: !vault |` to paste into a vars file",
                          "Encrypt one value (from VALUE, else standard input) as an inline `!vault` value, "
                          "like ansible-vault encrypt_string.", CODES,
@@ -64,8 +71,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def add_vault_options(parser: argparse.ArgumentParser) -> None:
     """--vault-password-file and --vault-id (repeatable): for `vault` and for every fleet command."""
     parser.add_argument("--vault-password-file", type=path_arg, metavar="FILE",
-                        help=f"file holding the vault password (or set {vaultlib.ENV_PASSWORD_FILE} "
-                             f"or {vaultlib.ENV_PASSWORD}); an executable file is run")
+                        help=f"file holding the vault password (or set {ENV_PASSWORD_FILE} "
+                             f"or {ENV_PASSWORD}); an executable file is run")
     parser.add_argument("--vault-id", dest="vault_ids", action="append", default=[], metavar="LABEL@FILE",
                         help="a vault id as in Ansible: LABEL@FILE, LABEL@prompt or FILE; repeat it for "
                              "files encrypted with different passwords (the first one encrypts)")
@@ -87,6 +94,7 @@ def load_masked(args: argparse.Namespace, out: Output, version: str | None) -> P
 
 def vault_from_args(args: argparse.Namespace, prompt: vaultlib.Prompt | None = None) -> vaultlib.Vault:
     """The Vault that add_vault_options' arguments describe (a --vault-password-file is one more id)."""
+    from rosdeploy import vault as vaultlib
     ids = [vaultlib.VaultId.parse(text) for text in args.vault_ids]
     if ids and args.vault_password_file:
         ids.append(vaultlib.VaultId("default", args.vault_password_file))
@@ -103,12 +111,14 @@ def _format_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _ansible_format(args: argparse.Namespace, near: str) -> bool:
+    from rosdeploy import vault as vaultlib
     if args.vault_format:
         return args.vault_format == "ansible"
     return vaultlib.holds_ansible_vaults(near)
 
 
 def _encrypt(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import vault as vaultlib
     vault = _vault(args, args.files[0], new_password=True)
     done = []
     for path in args.files:
@@ -121,6 +131,7 @@ def _encrypt(args: argparse.Namespace, out: Output) -> int:
 
 
 def _encrypt_string(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import vault as vaultlib
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", args.name):
         raise VaultError([Problem("--name", None, "", f"{shown(args.name)} is not a variable name: use letters, "
                                                       "digits and '_'")])
@@ -139,6 +150,7 @@ def _encrypt_string(args: argparse.Namespace, out: Output) -> int:
 
 
 def _decrypt(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import vault as vaultlib
     vault = _vault(args, args.files[0])
     for path in args.files:
         vaultlib.decrypt_file(path, vault)
@@ -148,6 +160,7 @@ def _decrypt(args: argparse.Namespace, out: Output) -> int:
 
 
 def _view(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import vault as vaultlib
     text = vaultlib.view_file(args.files[0], _vault(args, args.files[0])).decode("utf-8", "replace")
     if not out.as_json:
         out.line(text.rstrip("\n"))
@@ -155,6 +168,7 @@ def _view(args: argparse.Namespace, out: Output) -> int:
 
 
 def _edit(args: argparse.Namespace, out: Output) -> int:
+    from rosdeploy import vault as vaultlib
     path = args.files[0]
     editor = _editor(path)     # before anything is decrypted: a bad $EDITOR must not run the plaintext
     vault = _vault(args, path, new_password=not os.path.exists(path))

@@ -109,6 +109,13 @@ def is_dir(path: Path) -> bool:
         return False
 
 
+def _exists(path: Path) -> bool:
+    try:
+        return path.exists()
+    except OSError:
+        return False
+
+
 def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
     """Parse the inventory file(s); returns the directory holding group_vars/ and host_vars/."""
     if is_dir(root):
@@ -118,6 +125,11 @@ def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
                                                                "add hosts.yml (YAML) or hosts (INI)"))
     elif root.is_file():
         files, base = [root], root.parent
+    elif _exists(root):     # /dev/null, a fifo, a socket: there, but nothing to read an inventory from
+        draft.problems.append(Problem(str(root), None, "", "not a regular file or folder: give the path of an "
+                                                           "inventory file or folder (-i / the fleet file's "
+                                                           "`inventory:`)"))
+        return root
     else:
         draft.problems.append(Problem(str(root), None, "", "inventory not found: check -i / the fleet "
                                                            "file's `inventory:` path"))

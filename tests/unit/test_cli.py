@@ -123,7 +123,8 @@ def test_version(argv: list[str]) -> None:
 @pytest.mark.parametrize("argv", [["version", "--json"], ["--json", "--version"], ["-V", "--json"]])
 def test_version_json(argv: list[str]) -> None:
     done = rosdeploy(*argv)
-    assert done.returncode == 0 and json.loads(done.stdout) == {"version": __version__}
+    # every document carries ok and exit_code now (test_cli_seventh, defect 8)
+    assert done.returncode == 0 and json.loads(done.stdout) == {"version": __version__, "ok": True, "exit_code": 0}
 
 
 @pytest.mark.parametrize("argv, option", [(["validate", ""], "FLEET"),
@@ -386,7 +387,8 @@ def test_a_command_that_already_printed_its_document_gets_no_second_one(
     monkeypatch.setattr(cli, "cmd_version", late_failure)
     assert main(["--json", "version"]) == EXIT_PARTIAL
     captured = capsys.readouterr()
-    assert one_document(captured.out) == {"robots": []}
+    doc = one_document(captured.out)      # the command's document, with the failure added (not a second one)
+    assert (doc["robots"], doc["ok"], doc["exit_code"], doc["error"]["kind"]) == ([], False, EXIT_PARTIAL, "error")
     assert "r1: lost on the way out" in captured.err
 
 

@@ -531,7 +531,8 @@ def test_a_template_that_is_not_utf8_is_a_clean_error(capsys: pytest.CaptureFixt
 def test_a_fleet_path_that_is_no_file(capsys: pytest.CaptureFixture, path: str) -> None:
     code = main(["validate", path])
     text = "".join(capsys.readouterr())
-    assert code == 2 and path in text and "Traceback" not in text and "internal error" not in text
+    shown = path if len(path) < 200 else path[:60]      # a 5,000-character path is cut short in messages
+    assert code == 2 and shown in text and "Traceback" not in text and "internal error" not in text
 
 
 def test_hashed_and_bracketed_entries_still_verify(keys: dict, tmp_path: Path) -> None:

@@ -160,6 +160,23 @@ def test_interrupt_between_waves_skips_the_rest_and_reports(monkeypatch) -> None
     assert result.interrupted and not result.ok
     assert [(h.host, h.outcome) for h in result.hosts] == [
         ("r0", "deployed"), ("r1", "skipped"), ("r2", "skipped"), ("r3", "skipped")]
+    # not "rollout stopped": no wave failed, the operator stopped it
+    assert all(h.reason.startswith("interrupted before this robot's wave") for h in result.hosts[1:])
+
+
+@pytest.mark.parametrize("command, todo", [("apply", "run `rosdeploy apply` again"),
+                                           ("rollback", "roll back the robots it did not reach with --limit")])
+def test_an_interrupted_run_says_so_and_what_to_do(command: str, todo: str) -> None:
+    import io
+
+    from rosdeploy.cli import report
+    from rosdeploy.output import Output
+    from rosdeploy.results import DEPLOYED, SKIPPED, FleetResult, HostResult
+    buf = io.StringIO()
+    result = FleetResult(command, (HostResult("r0", DEPLOYED), HostResult("r1", SKIPPED)), interrupted=True)
+    report.summary(Output(stdout=buf, stderr=io.StringIO(), color=False), result, None)
+    last = buf.getvalue().splitlines()[-1]
+    assert last.startswith(f"{command} interrupted:") and todo in last, last
 
 
 class FakeLink:

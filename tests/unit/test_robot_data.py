@@ -174,7 +174,10 @@ def test_status_prints_robot_text_escaped(monkeypatch: pytest.MonkeyPatch) -> No
     rows = [status(monkeypatch, manifest=json.dumps(manifest),
                    lock=json.dumps({"run": "R", "by": HOSTILE, "pid": 1}))]
     text = printed(lambda out: report.status(out, rows))
-    assert len(text.splitlines()) == 2 and "\x1b]" not in text and "\x1b[2J" not in text
+    # the header, the robot's row, and its long WHY on a line of its own: none split by the robot's text
+    lines = text.splitlines()
+    assert len(lines) == 3 and lines[1].startswith("robot3") and lines[2].startswith("robot3: "), lines
+    assert "\x1b]" not in text and "\x1b[2J" not in text
 
 
 def test_history_prints_robot_text_on_one_line_escaped() -> None:

@@ -199,6 +199,9 @@ def test_executable_password_file_is_run(tmp_path, sealed):
     script.write_text(f"#!{sys.executable}\nimport sys; sys.exit('keyring locked')\n")
     with pytest.raises(VaultError, match="exited 1: keyring locked"):
         Vault(password_file=str(script)).decrypt(sealed, "v.yml")
+    script.write_text(f"#!{sys.executable}\nimport sys; sys.exit(3)\n")     # says nothing
+    with pytest.raises(VaultError, match="exited 3 and printed nothing on stderr: run it by hand"):
+        Vault(password_file=str(script)).decrypt(sealed, "v.yml")
 
 
 def test_an_executable_password_file_named_without_a_folder_is_this_folders(tmp_path, sealed, monkeypatch):
