@@ -23,7 +23,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
-from typing import TYPE_CHECKING, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping
 
 from rosdeploy import __version__, commands, guard, hold, hostchanges, restarts
 from rosdeploy.errors import CommandFailed, ConnectError, GuardTookOver, RemoteError
@@ -67,6 +67,8 @@ class RunContext:
     images: "Supply | None" = None      # pinned digests and routes (rosdeploy.images); None: pull by tag
     host_changes: bool = True                  # udev rules (rosdeploy.hostchanges); --no-host-changes
     become_password: str | None = field(default=None, repr=False)   # --ask-become-pass
+    started_at: str = field(default_factory=lambda: now())   # UTC, seconds: an operator's rollback after it brakes
+    braked: threading.Event = field(default_factory=threading.Event)   # set by a robot that found one
 
 
 def now() -> str:
@@ -509,6 +511,31 @@ def _put_back(run: RobotRun, release: RenderedRelease, state: RobotState, drifte
                       f"differed on the robot: {what}", **base)
 
 
+def brake_pulled(state: RobotState, since: str) -> Mapping[str, Any] | None:
+    """The newest operator rollback (`rosdeploy rollback`, another run's fleet rollback) recorded on
+    the robot after `since`: the emergency brake pulled during this rollout, which its later waves
+    must not undo."""
+    began = _when(since)
+    for entry in reversed(state.history):
+        if entry.get("event") == "rollback":
+            at = _when(entry.get("time"))
+            return entry if began is not None and at is not None and at > began else None
+    return None
+
+
+def _when(text: Any) -> datetime | None:
+    try:
+        return datetime.fromisoformat(text) if isinstance(text, str) else None
+    except ValueError:
+        return None
+
+
+def _braked(entry: Mapping[str, Any]) -> str:
+    who = describe({"run": entry.get("run"), "by": entry.get("by"), "since": entry.get("time")})
+    return (f"an emergency rollback by {who} switched this robot to {entry.get('release')} after this rollout "
+            "began: it is not deployed and the rollout stops here; run apply again to deploy")
+
+
 def _locked_by(holder: str, here: Controller | None = None) -> str:
     """Who holds the lock, and what to do: --break-lock only for a lock this machine cannot prove
     is a live run's (breaking a live run's lock lets two runs switch the robot at once)."""
@@ -528,6 +555,10 @@ def _apply(run: RobotRun, release: RenderedRelease) -> HostResult:
                           old_release=state.current, new_release=release.release_id)
     for _ in range(MOVED_TRIES):
         base = {"old_release": state.current, "new_release": release.release_id}
+        brake = brake_pulled(state, run.ctx.started_at)
+        if brake is not None:
+            run.ctx.braked.set()     # the rollout starts no more waves, and takes nothing back itself
+            return run.result(SKIPPED, running_release=state.current, reason=_braked(brake), **base)
         done = _unchanged(run, release, state, repair=True)
         if done is not None:
             return done
@@ -744,6 +775,9 @@ def _rollback(run: RobotRun, to_version: str | None, to_release: str | None) -> 
     if target is None:
         kept = ", ".join(state.releases) or "none"
         what = f"no kept release of version {to_version}" if to_version else "no previous release"
+        if run.locked and state.releases:   # the brake was pulled here all the same: a rollout now stops at it
+            run.history({"event": "rollback", "release": state.current, "from": state.current, "result": "failed",
+                         "reason": what})
         return run.result(FAILED, reason=f"{what} on the robot (kept: {kept})", **base)
     flavor = _rollback_flavor(run, state)
     if flavor is None:

@@ -205,8 +205,12 @@ def apply_fleet(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Rend
         aborted = _converge(ctx, hosts, releases, policy, done, until, notify)
     stopped = "interrupted before this robot's wave: nothing was changed on it" if ctx.cancel.is_set() else \
         "rollout stopped before this robot's wave"
+    if ctx.braked.is_set():
+        stopped = "an emergency rollback was pulled during this rollout: it stopped before this robot's wave"
     done.extend(_skipped(waves, done, stopped))
-    back = _fleet_rollback(ctx, hosts, done, policy, notify) if aborted and ctx.spec.rollback.fleet else ()
+    # braked: the operator's rollback took the robots back already; a second one would go further
+    back = _fleet_rollback(ctx, hosts, done, policy, notify) \
+        if aborted and ctx.spec.rollback.fleet and not ctx.braked.is_set() else ()
     return FleetResult("apply", tuple(done), aborted=aborted, fleet_rollback=back,
                        interrupted=ctx.cancel.is_set(), seconds=time.monotonic() - started, run_id=ctx.run_id)
 
@@ -267,6 +271,10 @@ def _waves(ctx: RunContext, waves: list[list[Host]], releases: dict[str, Rendere
             notify("wave", {"number": number, "of": len(waves), "hosts": [h.name for h in wave]})
             results = parallel(wave, work, policy.forks, ctx.cancel.set, reach.abandon)
             done.extend(_with_wave(r, number) for r in results)
+            if ctx.braked.is_set():      # an operator's rollback during this rollout (deploy.brake_pulled)
+                braked = [r.host for r in results if r.outcome == SKIPPED and "emergency rollback" in r.reason]
+                notify("braked", {"wave": number, "hosts": braked})
+                return True
             failed = [r for r in results if counts_as_failure(r, policy.count_busy, until is not None)]
             budget = allowed_failures(policy.max_fail, len(wave))
             if len(failed) > budget:
@@ -312,6 +320,9 @@ def _converge(ctx: RunContext, hosts: Sequence[Host], releases: dict[str, Render
             due.pop(done[i].host)
             tried = f"{done[i].outcome}: {done[i].reason}"
             done[i] = replace(result, wave=done[i].wave, earlier=done[i].earlier + (tried,))
+        if ctx.braked.is_set():     # an operator's rollback: no more retries undo it
+            notify("braked", {"wave": None, "hosts": [r.host for r in results if r.outcome == SKIPPED]})
+            return True
         if _over_budget({done[i].wave for i in batch}, done, policy, notify):
             return True
     return False

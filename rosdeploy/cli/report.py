@@ -172,6 +172,10 @@ def rollout_notifier(out: Output, args: argparse.Namespace,
         elif event == "abort":
             out.error(f"rollout stopped in wave {data['wave']}: {len(data['failed'])} robot(s) failed "
                       f"({', '.join(data['failed'])}), more than max_fail={data['max_fail']}")
+        elif event == "braked":
+            where = f" in wave {data['wave']}" if data["wave"] else ""
+            out.error(f"rollout stopped{where}: an emergency rollback was pulled during it on "
+                      f"{', '.join(data['hosts'])}; the later waves do not undo it (run apply again to deploy)")
         elif event == "fleet-rollback":
             out.warn(f"fleet-level rollback of robots already on the new release: {', '.join(data['hosts'])}")
         elif event == "pause":

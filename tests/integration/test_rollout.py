@@ -2,14 +2,17 @@
 unreachable robots. Each test asserts what the robots really run."""
 from __future__ import annotations
 
+import json
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from rosdeploy import sim as simulator
 from rosdeploy.errors import EXIT_ABORTED, EXIT_OK, EXIT_PARTIAL
-from robots import RobotShell, all_healthy, apply, shells, versions
+from robots import RobotShell, all_healthy, apply, rosdeploy, shells, versions
 
 pytestmark = pytest.mark.integration
 
@@ -92,3 +95,30 @@ def test_a_rollout_in_waves_settles_robots_already_on_the_release_and_canaries_o
     for host in again.doc["hosts"]:          # connect and the quick state read (`check`): nothing else ran
         assert [s["name"] for s in host["steps"]] == ["connect", "check"], host
     assert "== wave" not in again.stderr
+
+
+def test_an_emergency_rollback_during_a_rollout_stops_its_later_waves(fleet, fleet_file: Path) -> None:
+    """The brake pulled while a rollout pauses between waves: its later waves must not deploy
+    the release again to the robots the operator just took back."""
+    assert apply(fleet_file, "--waves", "100%").code == EXIT_OK          # 1.0.0 on every robot
+    robots = shells(fleet)
+    before = {name: shell.current() for name, shell in robots.items()}
+    rollout = subprocess.Popen([sys.executable, "-m", "rosdeploy", "--json", "apply", str(fleet_file), "--yes",
+                                "--version", "1.1.0", "--waves", "1,100%", "--pause", "15s"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    end, canary = time.monotonic() + 90, None
+    while canary is None and time.monotonic() < end and rollout.poll() is None:
+        canary = next((name for name, shell in robots.items() if shell.current() != before[name]), None)
+        time.sleep(0.5)
+    assert canary is not None, "wave 1 never switched a robot"
+    brake = rosdeploy("--json", "rollback", fleet_file, "--yes")      # during the pause before wave 2
+    assert brake.host(canary)["outcome"] == "switched", brake.stdout
+    out, err = rollout.communicate(timeout=120)
+    assert rollout.returncode == EXIT_ABORTED, err[-2000:]
+    doc = json.loads(out)
+    outcomes = {h["host"]: h["outcome"] for h in doc["hosts"]}
+    assert outcomes == {name: "deployed" if name == canary else "skipped" for name in robots}, doc["hosts"]
+    assert all("emergency rollback" in h["reason"] for h in doc["hosts"] if h["host"] != canary)
+    assert doc["fleet_rollback"] == [], "the operator's rollback took the canary back already"
+    for name, shell in robots.items():
+        assert shell.current() == before[name] and versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"}
