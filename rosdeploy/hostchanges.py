@@ -27,7 +27,6 @@ from typing import Any, Mapping
 
 from rosdeploy import rotation
 from rosdeploy.commands import Command, load, script
-from rosdeploy.errors import shown
 from rosdeploy.model import FleetSpec, Host, RenderedRelease
 
 RULES_FILE = "99-rosdeploy.rules"
@@ -58,34 +57,33 @@ class Become:
 
 def become(host: Host, asked_password: str | None = None) -> Become:
     v: Mapping[str, Any] = host.vars
-    named, secret = _read(v, "ansible_user")
+    from rosdeploy.inventory.templating import shown_unless_secret
+    named, read = _read(v, "ansible_user")
     user = host.user or str(named or "")
     if user == "root":
         return Become("direct")
     if str(v.get("ansible_become", "true")).lower() in ("false", "no", "0"):
-        who = "the SSH user" if secret or not user else user
+        who = "the SSH user" if read or not user else user
         return Become("", refused=f"ansible_become is false for {who}, who is not root: set "
                                   "ansible_become: true (and grant sudo), connect as root, or pass --no-host-changes")
-    target, secret = _read(v, "ansible_become_user")
+    target, read = _read(v, "ansible_become_user")
     if str(target or "root") != "root":
-        return Become("", refused=f"ansible_become_user is {_quoted(str(target), secret)}: host changes need root")
-    method, secret = _read(v, "ansible_become_method")
+        return Become("", refused=f"ansible_become_user is {shown_unless_secret(str(target), read)}: host "
+                                  "changes need root")
+    method, read = _read(v, "ansible_become_method")
     if str(method or "sudo") != "sudo":
-        return Become("", refused=f"ansible_become_method {_quoted(str(method), secret)} is not supported: use sudo")
+        return Become("", refused=f"ansible_become_method {shown_unless_secret(str(method), read)} is not "
+                                  "supported: use sudo")
     password = asked_password or v.get("ansible_become_password") or v.get("ansible_become_pass")
     return Become("sudo-S", str(password)) if password else Become("sudo-n")
 
 
-def _read(v: Mapping[str, Any], name: str) -> tuple[Any, bool]:
-    """An inventory var, and whether computing it read a vault var (its value is never shown then)."""
+def _read(v: Mapping[str, Any], name: str) -> tuple[Any, dict[str, str]]:
+    """An inventory var, and the vault vars computing it read (its value is never shown then)."""
     from rosdeploy.inventory.templating import secret_reads
     with secret_reads() as read:
         value = v.get(name)
-    return value, bool(read)
-
-
-def _quoted(value: str, secret: bool) -> str:
-    return "'********' (computed from a vault var: a secret is never shown)" if secret else shown(value)
+    return value, read
 
 
 def rules_name(project: str) -> str:

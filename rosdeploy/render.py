@@ -31,7 +31,8 @@ from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import Problem, RenderError, shown
 from rosdeploy.files import FILES_DIR, FileRenderer
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
-from rosdeploy.inventory.templating import not_quoted, secret_read, secret_reads, unless_secret
+from rosdeploy.inventory.templating import (not_quoted, secret_read, secret_reads, shown_unless_secret,
+                                            unless_secret)
 from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
 from rosdeploy.sandbox import (ContainedLoader, Layered, Sandbox, ShippedSandbox, describe, render_value,
                                shipped_cache,
@@ -774,7 +775,8 @@ class Renderer:
             with secret_reads() as read:
                 value = _defined(variables.get(name, default))
             if not valid(value):
-                problems.append(self._var_problem(host, name, f"{name} must be {what}; got {_got(value, read)}"))
+                got = shown_unless_secret(value, read)
+                problems.append(self._var_problem(host, name, f"{name} must be {what}; got {got}"))
             out[name] = value
         lease, announce = out["dds_lease_duration"], out["dds_lease_announcement"]
         both = all(TUNABLES[n][1](out[n]) for n in ("dds_lease_duration", "dds_lease_announcement"))
@@ -847,14 +849,6 @@ def _defined(value: Any) -> Any:
     if isinstance(value, jinja2.Undefined):
         value._fail_with_undefined_error()
     return value
-
-
-def _got(value: Any, read: Mapping[str, str]) -> str:
-    """A refused value for a message: never one computed from a vault var, in any form."""
-    if not read:
-        return shown(value)
-    source = min(read.items())[1]
-    return f"'********' (computed from vault var {shown(source)}: a secret is never shown)"
 
 
 _TO_SECRETS = "move {key} to the service's `secrets:` ({key}: <inventory var>) so it goes to .env only"

@@ -138,6 +138,14 @@ def not_quoted(var: str, source: str) -> str:
             "secret or a value computed from it (check the value with `rosdeploy vault view`)")
 
 
+def shown_unless_secret(value: Any, read: Mapping[str, str]) -> str:
+    """A value for a message (`read`: what secret_reads() collected while computing it): never one
+    computed from a vault var, in any form."""
+    if not read:
+        return shown(value)
+    return f"'********' (computed from vault var {shown(min(read.items())[1])}: a secret is never shown)"
+
+
 def secret_read(var: str, source: str) -> str:
     """How a secret var was read, for messages: `vault var 'token'`, or `var 'p' (computed from
     vault var 'token')`."""
