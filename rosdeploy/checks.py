@@ -383,6 +383,18 @@ def _secret_not_vaulted(ctx: Context, host: Host) -> Iterator[Problem]:
         "file: move it into a vault-encrypted vars file so it is never committed in the clear"))
 
 
+BECOME_PASSWORDS = ("ansible_become_password", "ansible_become_pass")
+
+
+@rule("become-password-not-vaulted", "warning", "host", "A sudo password comes from a vault file.",
+      "Move ansible_become_password into a vault-encrypted vars file, or pass --ask-become-pass.")
+def _become_password_not_vaulted(ctx: Context, host: Host) -> Iterator[Problem]:
+    for var in BECOME_PASSWORDS:
+        if var in host.vars and not _from_vault(host, var):
+            yield host_problem(host, var, f"{var} of {ROBOTS} is plain text, not from a vault file: move it into a "
+                                          "vault-encrypted vars file (it is a sudo password on every robot)")
+
+
 def _from_vault(host: Host, var: str) -> bool:
     """A vault value, or computed from one (`{{ vault_token|b64encode }}`)."""
     value = str(host.vars[var])    # read first: which vault var it came from is known once it is templated

@@ -1,6 +1,7 @@
 """The CLI side of robots that are busy or away: pending robots in `apply` and `status`."""
 from __future__ import annotations
 
+import re
 from typing import Any, Callable, Sequence
 
 from rosdeploy import pending
@@ -90,11 +91,15 @@ def status_notes(out: Output, rows: Sequence[Any]) -> None:
 
 def _said_once(host: str, outcome: object, reason: object) -> str:
     """The reason without the robot's name and the outcome the line says already, capped (not
-    cut at 160 characters: the advice at its end was lost)."""
-    text = str(reason)
+    cut at 160 characters: the advice at its end was lost). A guard's "in ~25 s (at 10:04:31 UTC)"
+    was true when the run lost the robot; `status` runs later, so only the clock time is kept."""
+    text = _GUARD_IN.sub(r"at \1", str(reason))
     for said in (f"{host}: ", f"{outcome}: "):
         text = text[len(said):] if text.startswith(said) else text
     return text[:600]
+
+
+_GUARD_IN = re.compile(r"in ~\d+ s \(at ([0-9:]+ UTC)\)")
 
 
 def _age(seconds: int) -> str:

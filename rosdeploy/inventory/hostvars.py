@@ -119,7 +119,11 @@ def check_layer(layer: Layer) -> tuple[list[Problem], list[Problem]]:
 
 # Ansible's ways to reach a host that rosdeploy does not take: it connects over SSH, with its own
 # client, its host key checks always on.
-_NOT_HONOURED = ("ansible_connection", "ansible_ssh_common_args", "ansible_ssh_extra_args")
+_NOT_HONOURED = ("ansible_connection", "ansible_ssh_common_args", "ansible_ssh_extra_args", "ansible_password",
+                 "ansible_ssh_pass", "ansible_ssh_password", "ansible_ssh_executable", "ansible_become_exe",
+                 "ansible_become_flags", "ansible_host_key_checking", "ansible_ssh_host_key_checking")
+_PASSWORDS = ("ansible_password", "ansible_ssh_pass", "ansible_ssh_password")
+_HOST_KEY_CHECKING = ("ansible_host_key_checking", "ansible_ssh_host_key_checking")
 _SSH_CONNECTIONS = ("ssh", "smart", "paramiko", "paramiko_ssh")
 
 
@@ -129,6 +133,17 @@ def _not_honoured(key: str, value: Any) -> str:
         if not isinstance(value, str) or value in _SSH_CONNECTIONS or "{{" in value:
             return ""
         return f"{shown(value)} is ignored: rosdeploy reaches every robot over SSH (with sshd at ansible_host)"
+    if key in _PASSWORDS:
+        return ("ignored: rosdeploy logs in with SSH keys only (ansible_ssh_private_key_file, the ssh agent or "
+                "the ssh config's IdentityFile); a robot that takes only a password is refused at connect")
+    if key in _HOST_KEY_CHECKING:
+        return ("" if value in (True, "true", "True", "yes", 1) else
+                "ignored: rosdeploy always checks host keys; add the robot's key to known_hosts "
+                "(ssh-keyscan, after checking its fingerprint)")
+    if key in ("ansible_become_exe", "ansible_become_flags"):
+        return "ignored: rosdeploy becomes root with sudo alone (`sudo -S`, or `sudo -n` with no password)"
+    if key == "ansible_ssh_executable":
+        return "ignored: rosdeploy runs no ssh command (it connects with its own SSH client)"
     return ("ignored: rosdeploy runs no ssh command and always checks host keys; put SSH options "
             "(ProxyJump, Port, User) in an OpenSSH config, the fleet file's `ssh.config` (default ~/.ssh/config)")
 
@@ -219,7 +234,10 @@ def _to_bool(value: Any) -> bool:
 def _safe_text(value: Any, what: str, extra_unsafe: str = "") -> str:
     if not isinstance(value, str) or not value:
         raise BadValue(f"must be {what} (a non-empty string), got {shown(value)}")
-    bad = sorted(set(value) & (SHELL_UNSAFE | set(extra_unsafe)))
+    # also any other whitespace or unprintable character (U+2028, U+0085, ESC): ssh's resolver and
+    # the files rendered from the value (logrotate's paths) would read them as separators
+    bad = sorted(set(value) & (SHELL_UNSAFE | set(extra_unsafe)) | {c for c in value if c.isspace() or
+                                                                     not c.isprintable()})
     if bad:
         chars = ", ".join(repr(c) for c in bad)
         raise BadValue(f"{what} {shown(value)} contains {chars}: whitespace and shell metacharacters are not "
@@ -238,10 +256,23 @@ def _to_address(value: Any) -> str:
     if len(address) > MAX_HOST_NAME:
         raise BadValue(f"{shown(address)} is longer than a host name can be ({MAX_HOST_NAME} characters): give "
                        "the robot's host name or IP address")
-    problem = _not_an_address(address)
+    problem = _not_an_address(address) or _not_a_host_name(address)
     if problem:
         raise BadValue(f"{shown(address)} {problem}")
     return address
+
+
+def _not_a_host_name(address: str) -> str | None:
+    """Why a name the resolver would refuse (an empty label, one over 63 characters) is no host name.
+    It passed validate and stopped `status` with an internal UnicodeError from the idna codec."""
+    if _is_ip(address):
+        return None
+    try:
+        address.encode("idna")
+    except UnicodeError:
+        return ("is not a valid host name (a dot-separated label is empty or longer than 63 characters): "
+                "give the robot's host name or IP address")
+    return None
 
 
 def _not_an_address(address: str) -> str | None:
@@ -263,10 +294,15 @@ def _is_ip(text: str) -> bool:
         return False
 
 
+MAX_USER = 256    # far past Linux's 32 (useradd) and a directory service's names; a bound for the paths built from it
+
+
 def _to_user(value: Any) -> str:
     user = _safe_text(value, "a user name")
     if user.startswith("-"):
         raise BadValue(f"{shown(user)} starts with '-', which ssh would read as an option; fix the user name")
+    if len(user) > MAX_USER:
+        raise BadValue(f"{shown(user)} is longer than a user name can be ({MAX_USER} characters); fix the user name")
     return user
 
 

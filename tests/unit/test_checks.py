@@ -358,6 +358,14 @@ def test_gpu_reservation() -> None:
 
 # --------------------------------------------------------------- machinery
 
+def test_a_plain_sudo_password_fires_and_a_vaulted_one_does_not() -> None:
+    plain = host(vars={"ansible_become_password": "sudo-pw-123"})
+    vaulted = host(vars={"ansible_become_password": "sudo-pw-123"}, secret_values=frozenset({"sudo-pw-123"}))
+    p = fires("become-password-not-vaulted", hosts=[plain])
+    assert "ansible_become_password" in p.message and "sudo-pw-123" not in p.message
+    silent("become-password-not-vaulted", hosts=[vaulted])
+
+
 def test_every_rule_is_tested_and_documented() -> None:
     for r in RULES.values():
         assert r.severity in checks.SEVERITIES and r.scope in ("fleet", "host", "release", "service")

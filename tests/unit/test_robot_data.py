@@ -206,6 +206,16 @@ def test_the_pending_notes_print_the_record_escaped(monkeypatch: pytest.MonkeyPa
     assert len(text.splitlines()) == 1 and "\x1b" not in text
 
 
+def test_a_pending_guard_note_keeps_its_clock_time_not_a_countdown(monkeypatch: pytest.MonkeyPatch) -> None:
+    # "reverts ... in ~25 s" was repeated by every later status, long after the guard acted
+    reason = ("robot1: connection lost during gate; the guard on the robot reverts to 1.0.0 in ~25 s "
+              "(at 10:04:31 UTC) (timed out)")
+    row = replace(status(monkeypatch), pending={"outcome": "unreachable", "version": "1.1.0", "since": "s",
+                                                 "reason": reason})
+    text = printed(lambda out: pending_cli.status_notes(out, [row]))
+    assert "reverts to 1.0.0 at 10:04:31 UTC (timed out)" in text and "~25 s" not in text
+
+
 # ------------------------------------------------------------------ 4. a corrupt pending record
 
 ENTRY = {"host": "robot1", "outcome": "busy", "reason": "r", "version": "1.0.0", "since": "s", "run": "run-1"}

@@ -1,0 +1,83 @@
+"""Eighth hostile-input audit: connection vars that passed validate and stopped `status` with an
+internal error, and Ansible vars rosdeploy ignores (or takes in clear text) without a word."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+import test_hostile
+from test_hostile import cli
+from test_vault_taint import group_vars
+
+lab = test_hostile.lab
+
+
+def host_vars(lab: Path, **values: object) -> None:
+    """r1's own vars: an ansible_host there beats the one hosts.yml gives it."""
+    path = lab / "inventory" / "host_vars" / "r1.yml"
+    data = yaml.safe_load(path.read_text()) or {}
+    path.write_text(yaml.safe_dump({**data, **values}, sort_keys=False))
+
+
+@pytest.mark.parametrize("value", ["a..b", ".", "a" * 64 + ".example", "robot\u2028one", "robot\x85one",
+                                   "robot\x1bone", "robot\u200bone"])
+def test_an_address_the_resolver_cannot_take_is_refused_at_its_var(capsys: pytest.CaptureFixture, lab: Path,
+                                                                   value: str) -> None:
+    # each passed validate, check and render, then `status` died with UnicodeError (exit 1)
+    host_vars(lab, ansible_host=value)
+    for command in ("validate", "check", "render"):
+        code, text = cli(capsys, lab, command)
+        assert code == 2 and "r1.yml:" in text and "ansible_host" in text, (command, text)
+        assert not (lab / "out").exists()
+
+
+@pytest.mark.parametrize("value", ["fe80::1%eth0", "robot-1.example.com", "robot1.", "10.0.0.7", "bücher.example"])
+def test_good_addresses_still_pass(capsys: pytest.CaptureFixture, lab: Path, value: str) -> None:
+    host_vars(lab, ansible_host=value)
+    code, text = cli(capsys, lab, "validate")
+    assert code == 0, text
+
+
+@pytest.mark.parametrize("value", ["a\u2028b", "a" * 5000, "a\x1bb"], ids=["separator", "long", "escape"])
+def test_a_user_name_is_refused_at_its_var_not_in_a_template(capsys: pytest.CaptureFixture, lab: Path,
+                                                             value: str) -> None:
+    # "a\u2028b" was reported at rosdeploy's own logrotate.conf.j2, not at ansible_user
+    group_vars(lab, ansible_user=value)
+    code, text = cli(capsys, lab, "validate")
+    assert code == 2 and "vars.yml:" in text and "ansible_user" in text and "logrotate" not in text, text
+
+
+@pytest.mark.parametrize("var, value, says", [
+    ("ansible_password", "hunter2-pass", "logs in with SSH keys only"),
+    ("ansible_ssh_pass", "hunter2-pass", "logs in with SSH keys only"),
+    ("ansible_host_key_checking", False, "always checks host keys"),
+    ("ansible_become_exe", "doas", "sudo alone"),
+    ("ansible_ssh_executable", "/usr/bin/ssh", "runs no ssh command"),
+])
+def test_an_ansible_var_rosdeploy_ignores_gets_a_warning_at_its_line(capsys: pytest.CaptureFixture, lab: Path,
+                                                                    var: str, value: object, says: str) -> None:
+    group_vars(lab, **{var: value})
+    code, text = cli(capsys, lab, "validate")
+    assert code == 0 and "vars.yml:" in text and var in text and says in text, text
+    assert "hunter2-pass" not in text
+
+
+def test_host_key_checking_left_on_says_nothing(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    group_vars(lab, ansible_host_key_checking=True)
+    code, text = cli(capsys, lab, "validate")
+    assert code == 0 and "ansible_host_key_checking" not in text, text
+
+
+def test_a_plain_text_sudo_password_is_a_warning_and_never_shown(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    group_vars(lab, ansible_become=True, ansible_become_password="plain-sudo-pw")
+    code, text = cli(capsys, lab, "check")
+    assert code == 0 and "become-password-not-vaulted" in text and "vars.yml:" in text, text
+    assert "plain-sudo-pw" not in text
+
+
+def test_a_vaulted_sudo_password_is_not_warned_about(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    group_vars(lab, ansible_become=True, ansible_become_password="{{ api_token }}")
+    code, text = cli(capsys, lab, "check")
+    assert code == 0 and "become-password-not-vaulted" not in text, text
