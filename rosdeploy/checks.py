@@ -19,6 +19,7 @@ Severities: error (refused by validate and deploy), warning, info.
 from __future__ import annotations
 
 import functools
+import posixpath
 import re
 import xml.etree.ElementTree as ET
 from collections import defaultdict
@@ -31,6 +32,7 @@ from rosdeploy.errors import InputError, Problem, shown
 from rosdeploy.fleet import problem_at, size_bytes
 from rosdeploy.inventory.hostvars import PREFIX
 from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
+from rosdeploy.output import LONG_SECRET
 
 SEVERITIES = ("error", "warning", "info")
 TARGET_SCOPES = ("release", "service")    # rules that see one robot's release and nothing else
@@ -231,7 +233,8 @@ def parse_release(host: Host, release: RenderedRelease) -> Target:
         raw, resolved = release.compose_data
         return Target(host, release, env, resolved, raw)
     try:
-        raw = yamlsrc.load_data(names["compose.yml"].content, "compose.yml")
+        # load(), not load_data(): a user template can render a key twice, which Compose v2 refuses
+        raw = yamlsrc.load("compose.yml", text=names["compose.yml"].content).data
     except InputError as exc:
         p = exc.problems[0]
         return Target(host, release, env, None, None, f"line {p.line}: {p.message}" if p.line else p.message)
@@ -367,6 +370,22 @@ def _device_undeclared(ctx: Context, host: Host) -> Iterator[Problem]:
                     f"or remove it from the service"))
 
 
+@rule("device-duplicate", "error", "host", "A service's devices are distinct paths on the robot.",
+      "Keep one of the logical names that map to the same path in the service's `devices:`.")
+def _device_duplicate(ctx: Context, host: Host) -> Iterator[Problem]:
+    """Compose v1 refuses a `devices:` list with one entry twice ("non-unique elements"), and
+    two logical names of the inventory can be the same /dev path on one robot."""
+    for svc in ctx.spec.services:
+        first: dict[str, str] = {}
+        for i, device in enumerate(svc.devices):
+            path = host.devices.get(device)
+            if path is None or first.setdefault(path, device) == device:
+                continue
+            yield problem_at(ctx.spec, ("services", svc.name, "devices", i), (
+                f"service {svc.name} maps devices `{first[path]}` and `{device}`, which are both {shown(path)} on "
+                f"{ROBOTS}: Compose v1 refuses a device listed twice; keep one of them"))
+
+
 @rule("secret-undefined", "error", "host", "Every `secrets:` entry names a variable the robot has.",
       "Define the variable in a vault-encrypted vars file of the inventory.")
 def _secret_undefined(ctx: Context, host: Host) -> Iterator[Problem]:
@@ -402,12 +421,37 @@ def _from_vault(host: Host, var: str) -> bool:
     return value in host.secret_values or (source is not None and source(var) is not None)
 
 
-@rule("secret-short", "warning", "host", "Secrets are at least 4 characters (shorter ones are not masked in output).",
+@rule("secret-empty", "error", "host", "Every `secrets:` var holds a value (not null, not empty).",
+      "Give the variable a value in its vault-encrypted vars file.")
+def _secret_empty(ctx: Context, host: Host) -> Iterator[Problem]:
+    """At the vault var: null was written to .env as `None`, and an empty value makes compose's
+    `${NAME:?...}` refuse the file at `up`, on the robot."""
+    for var, env in _secret_vars(ctx):
+        if var in host.vars and host.vars.get(var) in (None, ""):
+            what = "null" if host.vars.get(var) is None else "empty"
+            yield host_problem(host, var, (
+                f"`{var}` of {ROBOTS} is {what}, and the service's {env} takes it: a secret needs a value (the "
+                f"robot's compose refuses an empty `${{{env}:?}}` when it starts the services); give `{var}` one"))
+
+
+@rule("secret-short", "warning", "host", f"Secrets are at least {LONG_SECRET} characters (shorter ones are masked in "
+      "output only where they stand as a whole word).",
       "Use a longer secret.")
 def _secret_short(ctx: Context, host: Host) -> Iterator[Problem]:
-    return _secret_findings(ctx, lambda var: var in host.vars and len(str(host.vars[var])) < 4, (
-        "`{var}` of {robots} is shorter than 4 characters: too short to be a secret and too short "
-        "for rosdeploy to mask in its output; use a longer value"))
+    return _secret_findings(ctx, lambda var: host.vars.get(var) not in (None, "") and
+                            len(str(host.vars[var])) < LONG_SECRET, (
+        f"`{{var}}` of {{robots}} is shorter than {LONG_SECRET} characters: rosdeploy masks a secret that short in "
+        "its output only where it stands as a whole word, so it shows in a path or a name (`/dev/<secret>`, "
+        "`<secret>.yaml`); use a longer value"))
+
+
+def _secret_vars(ctx: Context) -> Iterator[tuple[str, str]]:
+    """(inventory var, ENV name) of every `secrets:` entry, each var once."""
+    seen: dict[str, str] = {}
+    for svc in ctx.spec.services:
+        for env, var in svc.secret_env.items():
+            seen.setdefault(var, env)
+    return iter(seen.items())
 
 
 def _secret_findings(ctx: Context, bad: Callable[[str], bool], message: str) -> Iterator[Problem]:
@@ -657,6 +701,110 @@ def _holds_engine_socket(source: str) -> bool:
         return True
     folder = "/" + source.strip("/")
     return source.startswith("/") and any(sock.startswith(folder.rstrip("/") + "/") for sock in _ENGINE_SOCKETS)
+
+
+@rule("device-root", "error", "service", "No container maps a device that is root on the robot.",
+      "Map only the device the node needs (a serial port, a camera); add `allow_privileged: true` if it is on "
+      "purpose.")
+def _device_root(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    for _, path in _unwaived_sources(ctx, name, svc, "devices"):
+        what = _root_device(path)
+        if what:
+            yield ("services", name, "devices"), (
+                f"service {name} maps {path} on {ROBOTS}, {what}: whoever controls the container is root on the "
+                "robot; map only the device the node needs, or set `allow_privileged: true` to say it is on purpose")
+
+
+def _unwaived_sources(ctx: Context, name: str, svc: dict, key: str) -> Iterator[tuple[Any, str]]:
+    """(entry, robot path as the kernel reads it) of a service's `devices` or `volumes`; none when
+    the service says it is privileged on purpose (allow_privileged waives these rules too)."""
+    declared = ctx.service(name)
+    if declared and declared.allow_privileged:
+        return
+    for entry in _as_list(svc.get(key)):
+        yield entry, _normal_path(_mount_source(entry))
+
+
+# Device nodes that are root in all but name (the same ones as _ROOT_CHAR_DEVICES): physical memory,
+# I/O ports, the microcode loader, device-mapper and loop control; and the disks, whose every file
+# (/etc/shadow, /root/.ssh) a container that writes the block device can rewrite.
+_ROOT_DEVICES = ("/dev/mem", "/dev/kmem", "/dev/port", "/dev/cpu/microcode", "/dev/mapper/control",
+                 "/dev/loop-control")
+_DISK = re.compile(r"/dev/(?:(?:sd|hd|vd|xvd)[a-z]|nvme[0-9]|mmcblk[0-9]|sg[0-9]|loop[0-9]|dm-[0-9]|md[0-9]|mapper/)")
+
+
+@functools.lru_cache(maxsize=1024)    # pure, and a fleet's robots share their mounts: once per path
+def _root_device(path: str) -> str:
+    """Why mapping `path` (normalised) is root on the robot, or "" when it is not."""
+    if path == "/dev":
+        return "which is every device of the robot (Docker maps all the devices under a folder)"
+    if path in _ROOT_DEVICES:
+        return "which reads and writes the robot's memory or kernel" if path != "/dev/loop-control" else \
+            "which makes block devices"
+    if any(device.startswith(path + "/") for device in _ROOT_DEVICES):
+        return f"a folder that holds {next(d for d in _ROOT_DEVICES if d.startswith(path + '/'))}"
+    if _DISK.match(path):
+        return "which is a disk (every file on it, /etc/shadow included, can be rewritten)"
+    return ""
+
+
+@functools.lru_cache(maxsize=1024)    # pure, and a fleet's robots share their mounts: once per path
+def _normal_path(path: str) -> str:
+    """`path` as the kernel reads it: `/dev//`, `/etc/./` and `//etc` are /dev and /etc."""
+    if not path.startswith("/"):
+        return path
+    return "/" + posixpath.normpath(path).lstrip("/")
+
+
+@rule("mount-system-writable", "error", "service", "No container mounts a robot's system folder writable.",
+      "Mount it read-only (`:ro`), or only the folder the node needs; add `allow_privileged: true` if it is on "
+      "purpose.")
+def _mount_system_writable(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
+    for entry, source in _unwaived_sources(ctx, name, svc, "volumes"):
+        folder = _system_folder(source)
+        # the engine's socket folders (/, /var, /run) are docker-socket-mounted's finding
+        if folder and _bind_writable(entry) and not _holds_engine_socket(source):
+            yield ("services", name, "volumes"), (
+                f"service {name} mounts {source} writable{_holds(source, folder)}: a container that writes "
+                f"{folder} is root on the robot; mount it `:ro`, or set "
+                "`allow_privileged: true` to say it is on purpose")
+
+
+# Robot folders a container that writes them is root through: the system's configuration (sudoers,
+# passwd, cron, systemd units), root's home, the boot files and kernel modules, the programs root
+# runs, the kernel's own settings (/proc/sys/kernel/core_pattern and /sys/kernel/uevent_helper run a
+# program as root), and the engines' data (a container's files, its config). Of /sys, only the
+# kernel's settings, modules, firmware and cgroups: /sys/class/gpio or /sys/bus/iio are the robot's
+# hardware, which robot containers do mount.
+_SYSTEM_FOLDERS = ("/etc", "/root", "/boot", "/proc", "/sys/kernel", "/sys/module", "/sys/fs", "/sys/firmware",
+                   "/usr", "/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32", "/var/lib/docker",
+                   "/var/lib/containerd", "/var/spool/cron")
+# Files of /etc that robot containers commonly mount, and whose content gives nobody root
+_HARMLESS = frozenset({"/etc/localtime", "/etc/timezone", "/etc/machine-id", "/etc/hostname", "/etc/os-release",
+                       "/etc/lsb-release", "/etc/nv_tegra_release"})
+
+
+@functools.lru_cache(maxsize=1024)    # pure, and a fleet's robots share their mounts: once per path
+def _system_folder(source: str) -> str:
+    """The system folder `source` is, lies in or holds; "" for any other path."""
+    if not source.startswith("/") or source in _HARMLESS:
+        return ""     # a named volume, a path inside the release (its store, its logs), the time zone
+    for folder in _SYSTEM_FOLDERS:
+        if source == folder or source.startswith(folder + "/") or folder.startswith(source.rstrip("/") + "/"):
+            return folder
+    return ""
+
+
+def _holds(source: str, folder: str) -> str:
+    return f", which holds {folder}" if folder.startswith(source.rstrip("/") + "/") else ""
+
+
+def _bind_writable(entry: Any) -> bool:
+    """A bind mount from a robot path, without read-only (`src:dst:ro` or the long form's read_only)."""
+    if isinstance(entry, dict):
+        return entry.get("type", "bind") == "bind" and not entry.get("read_only")
+    parts = str(entry).split(":")
+    return len(parts) > 1 and "ro" not in (parts[2].split(",") if len(parts) > 2 else ())
 
 
 @rule("shm-too-small", "error", "service", "shm_size is at least 256 MB (Docker's 64 MB breaks DDS shared memory).",

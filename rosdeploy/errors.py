@@ -48,11 +48,17 @@ class Problem:
         return one_line(f"{where}: {text}" if where else text)   # no file (a registry, a flag): no empty prefix
 
 
-_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+# Characters a message shows escaped, never obeyed (a regular expression's character class): C0
+# and C1 controls and DEL; the bidi controls (U+061C, U+200E-F, U+202A-E, U+2066-9), which turn
+# the rest of a line around on screen; the zero-width ones (U+200B-D, U+2060, U+FEFF) and the
+# rest of U+2060-206F, which hide text; and U+2028/U+2029 (U+0085 is a C1 control), at which
+# `splitlines()` and log viewers split one line in two.
+UNSEEN = "\x00-\x1f\x7f-\x9f\u061c\u200b-\u200f\u2028-\u202e\u2060-\u206f\ufeff"
+_CONTROL = re.compile(f"[{UNSEEN}]")
 
 
 def one_line(text: str) -> str:
-    """`text` with its control characters escaped (`\\n`, `\\x1b`): one line, as output.one_line."""
+    """`text` with the UNSEEN characters escaped (`\\n`, `\\x1b`, `\\u202e`): one line, as output.one_line."""
     return _CONTROL.sub(lambda m: repr(m[0])[1:-1], text)
 
 

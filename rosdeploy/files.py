@@ -31,6 +31,9 @@ from rosdeploy.yamlsrc import Doc
 
 FILES_DIR = "files"
 MAX_BYTES = 50 * 1024 * 1024      # a release is uploaded whole on every deploy
+# A template (a `template:` file, a template folder's file) is a page of layout, compiled whole
+# before any bound of the sandbox applies: 10 MB of one took 47 s and 327 MB.
+MAX_TEMPLATE_BYTES = 1 << 20
 
 
 class _Dumper(yaml.SafeDumper):
@@ -62,7 +65,8 @@ class FileRenderer:
         self._cache: dict[Path, str] = {}
         self._templates: dict[Path, jinja2.Template] = {}
 
-    def render(self, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> RobotFiles:
+    def render(self, host: Host, variables: Mapping[str, Any], problems: list[Problem], key: bytes) -> RobotFiles:
+        """`key`: model.secret_key, for the store address of a secret file."""
         names = {"vars": variables, "host": host, "inventory_hostname": host.name}
         out: list[RenderedFile] = []
         stored: dict[str, str] = {}
@@ -81,7 +85,7 @@ class FileRenderer:
                 secrets.update(text for var in secret if isinstance(text := variables.get(var), str))
             mode = 0o600 if entry.secret else 0o644
             plain = RenderedFile(f"{FILES_DIR}/{entry.name}", content, mode=mode, secret=entry.secret)
-            copy = restarts.stored(plain, entry.target.rsplit("/", 1)[-1])
+            copy = restarts.stored(plain, entry.target.rsplit("/", 1)[-1], key)
             out += [plain, copy]
             stored[entry.name] = f"{restarts.mount_source(copy)}:{entry.target}:ro"
             if entry.secret:
@@ -122,6 +126,10 @@ class FileRenderer:
         text = self._read(path, host, entry, problems)
         if text is None or entry.kind == "copy":
             return text
+        if len(text) > MAX_TEMPLATE_BYTES:     # characters: at most as many as bytes
+            problems.append(self._problem(host, entry, f"{path} is over {MAX_TEMPLATE_BYTES >> 20} MiB, too large for "
+                                                       "a template: use `copy:` for a file that needs no templating"))
+            return None
         try:
             template = self._templates.get(path) or self._templates.setdefault(path, self.env.from_string(text))
             return render_value(template, *layers)

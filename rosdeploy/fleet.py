@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import datetime
 import difflib
+import glob
+import io
 import math
 import os
 import posixpath
@@ -357,6 +359,17 @@ def _string(kind: str | None = None, what: str = "") -> Convert:
     return convert
 
 
+MAX_ID = 2**31 - 1     # runc: "uids and gids must be in range 0-2147483647"
+
+
+def _user(r: Reader, kp: KeyPath, value: Any) -> Any:
+    """A name, uid or uid:gid; a numeric id that runc refuses at the container's start is refused here."""
+    user = _string("user", "user (name, uid or uid:gid)")(r, kp, value)
+    if any(part.isdigit() and (len(part) > 10 or int(part) > MAX_ID) for part in user.split(":")):
+        raise Invalid(f"{shown(user)}: a uid or gid is at most {MAX_ID} (runc refuses larger ones at the start)")
+    return user
+
+
 def _text(r: Reader, kp: KeyPath, value: Any) -> Any:
     """Free text for an environment value: scalars are written as compose would read them."""
     if isinstance(value, bool):
@@ -409,24 +422,205 @@ MAX_SSH_CONFIG = 1 << 20     # bytes: an OpenSSH config of a whole fleet is a fe
 
 
 def _ssh_config_file(r: Reader, kp: KeyPath, value: Any) -> Any:
-    """An OpenSSH client config: a regular UTF-8 file that exists (a binary one was an internal
-    error, a 1 GB one a MemoryError, a fifo or a folder silently nothing)."""
+    """An OpenSSH client config, read and checked as `status` reads it (Includes followed), so
+    validate refuses what status would (a fifo, a binary or 1 GB file, a vault, `Port abc`)."""
     path = r.local_path(kp, value)
     try:
         os.stat(path)
     except OSError as exc:
         raise Invalid(f"{path}: {exc.strerror}: give the path of an OpenSSH client config file") from None
+    try:
+        read_ssh_config(path)
+    except BadSSHConfig as exc:
+        raise Invalid(str(exc)) from None
+    return path
+
+
+MAX_INCLUDE_DEPTH = 16       # OpenSSH's READCONF_MAX_DEPTH
+MAX_SSH_CONFIG_TOTAL = 4 << 20   # bytes of one config with its Includes: a file included twice at each level is 2**16
+_SETTING = re.compile(r"(\w+)(?:\s*=\s*|\s+)(.+)")   # paramiko's SSHConfig.SETTINGS_REGEX: the same lines refused
+_MATCH_BARE = ("all", "canonical", "final")
+
+
+class BadSSHConfig(Exception):
+    """An ssh config rosdeploy refuses, at file:line when a line is to blame. `unreadable`: the
+    file could not be read at all (a robot error at connect time, as before), else an input error."""
+
+    def __init__(self, file: str, line: int | None, message: str, unreadable: bool = False) -> None:
+        super().__init__(f"{file}:{line}: {message}" if line else f"{file} {message}")
+        self.file, self.line, self.message, self.unreadable = file, line, message, unreadable
+
+
+class SSHConfigText:
+    """A config with its Includes spliced in: the lines paramiko parses, where each came from, and
+    every file read (their mtimes key the caches that must see an edited included file)."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+        self.origins: list[tuple[str, int]] = []
+        self.files: list[str] = []
+        self.size = 0
+
+    def add(self, line: str, origin: tuple[str, int]) -> None:
+        self.lines.append(line)
+        self.origins.append(origin)
+
+
+def read_ssh_config(path: str) -> SSHConfigText:
+    """`path` and what it Includes, each line checked for the values fabric and paramiko would turn
+    into a crash (ValueError, KeyError) at connect time. Reading runs nothing (`Match exec` runs only
+    at lookup). Relative Includes resolve against ~/.ssh, or /etc/ssh for the system config, as in OpenSSH."""
+    base = "/etc/ssh" if os.path.abspath(path) == "/etc/ssh/ssh_config" else os.path.expanduser("~/.ssh")
+    out = SSHConfigText()
+    _read_config_into(out, path, base, (os.path.realpath(path),))
+    return out
+
+
+def _read_config_into(out: SSHConfigText, path: str, base: str, stack: tuple[str, ...]) -> bool:
+    """Append `path`'s lines to `out`; True when they (or their Includes) hold a Host or Match line."""
+    text = _config_text(path)
+    out.files.append(path)
+    out.size += len(text)
+    if out.size > MAX_SSH_CONFIG_TOTAL:
+        raise BadSSHConfig(path, None, f"and its Includes are larger than {MAX_SSH_CONFIG_TOTAL >> 20} MB together")
+    headers, conditional = False, False
+    for number, raw in enumerate(io.StringIO(text), 1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        found = _SETTING.match(line)
+        if not found:
+            raise BadSSHConfig(path, number, "not an OpenSSH client config line (the line is not shown): fix it, or "
+                                             "`ssh.config` in the fleet file")
+        key = found.group(1).lower()
+        value = found.group(2) if key in ("host", "match") else _unquoted(found.group(2))
+        if key == "include":
+            inner = _include(out, value, base, stack, (path, number))
+            if inner and conditional:
+                raise BadSSHConfig(path, number, "Include inside a Host or Match block, of a file with Host or Match "
+                                                 "lines, is not supported: move the Include above the first Host "
+                                                 "or Match line")
+            if inner:      # OpenSSH goes back to the including block: here the top level
+                out.add("Host *\n", (path, number))
+            continue
+        why = _SETTING_CHECKS[key](value) if key in _SETTING_CHECKS else None
+        if why:
+            raise BadSSHConfig(path, number, f"{found.group(1)}: {why}")
+        if key in ("host", "match"):
+            headers = True
+            conditional = value.strip() not in ("*", "all")
+        out.add(raw, (path, number))
+    return headers
+
+
+def _include(out: SSHConfigText, value: str, base: str, stack: tuple[str, ...], at: tuple[str, int]) -> bool:
+    """Follow one Include line: its globs, in order, each match read as a config of its own."""
+    try:
+        patterns = shlex.split(value)
+    except ValueError:
+        raise BadSSHConfig(*at, "Include: unbalanced quotes") from None
+    headers = False
+    for pattern in patterns:
+        pattern = os.path.join(base, os.path.expanduser(pattern))   # an absolute one stays as it is
+        for each in sorted(glob.glob(pattern)):    # OpenSSH: no match is no file, silently
+            real = os.path.realpath(each)
+            if real in stack:
+                raise BadSSHConfig(*at, f"Include loop: {each} includes itself again")
+            if len(stack) >= MAX_INCLUDE_DEPTH:
+                raise BadSSHConfig(*at, f"Includes nested deeper than {MAX_INCLUDE_DEPTH} (OpenSSH's limit)")
+            headers |= _read_config_into(out, each, base, (*stack, real))
+    return headers
+
+
+def _config_text(path: str) -> str:
+    """One config file's text: a regular UTF-8 file of at most MAX_SSH_CONFIG bytes, never a vault
+    password file (its text unlocks every vault: never parsed, never quoted)."""
+    from rosdeploy.vault import is_password_file    # here: validate of a fleet without vault never imports it
+    if is_password_file(path):
+        raise BadSSHConfig(path, None, "is a vault password file, not an ssh config: fix `ssh.config` in the fleet "
+                                       "file")
     problem = _file_problem(path, MAX_SSH_CONFIG, "an OpenSSH client config file", "OpenSSH config file")
     if problem:
-        raise Invalid(problem)
+        raise BadSSHConfig(path, None, problem.removeprefix(path).lstrip(), unreadable=True)
     try:
-        with open(path, "rb") as handle:
-            handle.read(MAX_SSH_CONFIG + 1).decode("utf-8")
+        return yamlsrc.read_bytes(path, MAX_SSH_CONFIG, "an OpenSSH client config").decode("utf-8")
     except UnicodeDecodeError:
-        raise Invalid(f"{path} is not UTF-8 text: give the path of an OpenSSH client config file") from None
-    except OSError as exc:
-        raise Invalid(f"{path}: {exc.strerror}: give the path of an OpenSSH client config file") from None
-    return path
+        raise BadSSHConfig(path, None, "is not UTF-8 text: give the path of an OpenSSH client config file",
+                           unreadable=True) from None
+    except InputError as exc:
+        raise BadSSHConfig(path, None, exc.problems[0].message, unreadable=True) from None
+
+
+def _unquoted(value: str) -> str:
+    """A value as paramiko stores it: one pair of surrounding double quotes removed."""
+    return value[1:-1] if len(value) > 1 and value.startswith('"') and value.endswith('"') else value
+
+
+def _port_problem(value: str) -> str | None:
+    # fabric calls int() on it (ValueError: an internal error), and a socket takes 99999 as 34463
+    if re.fullmatch(r"[0-9]{1,5}", value.strip()) and 1 <= int(value) <= 65535:
+        return None
+    return f"{shown(value, 20)} is not a port: give a number from 1 to 65535"
+
+
+def _count_problem(value: str) -> str | None:
+    return None if re.fullmatch(r"[0-9]{1,6}", value.strip()) else f"{shown(value, 20)} is not a whole number"
+
+
+def _jump_problem(value: str) -> str | None:
+    try:
+        proxy_jump_hops(value)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+def proxy_jump_hops(value: str) -> list[tuple[str | None, str, int | None]]:
+    """ProxyJump's hops as (user, host, port), first hop first; `none` is no hop, as in OpenSSH."""
+    if value.strip().lower() == "none":
+        return []
+    hops = []
+    for hop in value.split(","):
+        spec = hop.strip().removeprefix("ssh://")
+        user, _, hostport = spec.rpartition("@")
+        host, port = hostport, None
+        bracketed = re.fullmatch(r"\[([^\]]+)\](?::(.*))?", hostport)
+        if bracketed:
+            host, port = bracketed.group(1), bracketed.group(2)
+        elif hostport.count(":") == 1:
+            host, port = hostport.split(":")
+        if not host or (port is not None and _port_problem(port)):
+            raise ValueError(f"{shown(hop.strip(), 40)} is not a jump host: write [user@]host[:port], "
+                             "the port from 1 to 65535")
+        hops.append((user or None, host, int(port) if port is not None else None))
+    return hops
+
+
+def _match_problem(value: str) -> str | None:
+    """paramiko's parse-time checks of a Match line (SSHConfig._get_matches)."""
+    try:
+        tokens = shlex.split(value)
+    except ValueError:
+        return "unbalanced quotes"
+    kinds = []
+    while tokens:
+        kind = tokens.pop(0).lstrip("!")
+        kinds.append(kind)
+        if kind not in _MATCH_BARE and not tokens:
+            return f"{shown(kind, 20)} needs a value"
+        if kind not in _MATCH_BARE:
+            tokens.pop(0)
+    if "all" in kinds and set(kinds) - {"all", "canonical"}:
+        return "`all` goes alone (or after `canonical`)"
+    if "all" in kinds and "canonical" in kinds and kinds.index("canonical") > kinds.index("all"):
+        return "`canonical` goes before `all`"
+    return None
+
+
+_SETTING_CHECKS: dict[str, Callable[[str], str | None]] = {
+    "port": _port_problem, "canonicalizemaxdots": _count_problem, "proxyjump": _jump_problem,
+    "match": _match_problem,
+}
 
 
 def known_hosts_problem(path: str) -> str | None:
@@ -441,8 +635,10 @@ def _file_problem(path: str, limit: int, wanted: str, kind: str) -> str | None:
     (a missing file included: each caller says what that means)."""
     try:
         info = os.stat(path)
-    except OSError:
+    except (FileNotFoundError, NotADirectoryError):
         return None
+    except OSError as exc:      # a symlink loop, no permission: "not in known_hosts" would send the user astray
+        return f"{path} cannot be read: {exc.strerror}: give the path of {wanted}"
     if not stat.S_ISREG(info.st_mode):
         return f"{path} is not a regular file (a fifo, a device or a directory): give the path of {wanted}"
     if info.st_size > limit:
@@ -629,6 +825,9 @@ def _health_test(r: Reader, kp: KeyPath, value: Any) -> Any:
                       '[CMD-SHELL, "ros2 topic list | grep -q /joint_states"]')
     if not words[1].strip():    # CMD: no program to run, never healthy; CMD-SHELL: `sh -c ''`, always healthy
         raise Invalid(f"is empty: give the command to run after {words[0]}", (1,))
+    if words[0] == "CMD-SHELL" and len(words) > 2:    # Docker runs `sh -c "a" "b"`: "b" is only $0
+        raise Invalid('CMD-SHELL takes one string, the shell command (the words after it would be dropped): '
+                      'write [CMD-SHELL, "a b"], or [CMD, a, b] to run it without a shell', (2,))
     return words
 
 
@@ -985,7 +1184,7 @@ SERVICE = {
     "healthcheck": _healthcheck,
     "depends_on": _listof(_string("name", "service name"), "service names"),
     "topics": lambda r, kp, v: _topics(r, kp, v),
-    "user": _string("user", "user (name, uid or uid:gid)"),
+    "user": _user,
     "privileged": _boolean, "allow_privileged": _boolean,
     "profiles": _listof(_string("name", "profile name"), "profile names"),
     "compose": _compose_passthrough,
@@ -1183,12 +1382,20 @@ def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]
         elif name.startswith(_IPC_SYSCTLS) and extra.get("ipc") == "host":
             r.error(where + ("sysctls", at), f"Docker refuses {name} with `ipc: host`: it needs the container's "
                                              "own IPC namespace")
+    mac = extra.get("mac_address")
+    if isinstance(mac, str) and (host_net or not _MAC.fullmatch(mac)):
+        r.error(where + ("mac_address",), "Docker refuses a MAC address on host networking (`ros.network_mode: "
+                                          "host`): remove it" if host_net else
+                f"{shown(mac)} is not a MAC address: write six hex pairs, e.g. 02:42:ac:11:00:02")
     _check_tmpfs_at_volumes(r, kp, extra.get("tmpfs"))
     _check_compose_values(r, where, extra)
+    _check_compose_formats(r, where, extra)
     links = extra.get("links")
     for i, link in enumerate(links if isinstance(links, list) else []):
         target = str(link).split(":", 1)[0]
-        if target not in names:
+        if target == kp[-1]:
+            r.error(where + ("links", i), "a service cannot link to itself (Compose refuses the cycle): remove it")
+        elif target not in names:
             r.error(where + ("links", i), f"no service is named `{target}`{_did_you_mean(target, names)}")
 
 
@@ -1245,6 +1452,59 @@ def _check_compose_values(r: Reader, where: KeyPath, extra: dict) -> None:
                                                + (f": did you mean `{close[0]}`?" if close else ""))
         elif isinstance(limit, dict) and all(isinstance(limit.get(k), int) for k in ("soft", "hard")):
             _check_ulimit(r, where + ("ulimits", name), limit["soft"], limit["hard"])
+
+
+# Forms the Compose schema's `format`s stand for (fleet.py checks no format): Go's net.ParseMAC
+# (a little looser: no count of octets), time.ParseDuration, and go-units' RAMInBytes for a rate.
+_MAC = re.compile(r"[0-9A-Fa-f]{2}(?::[0-9A-Fa-f]{2}){5,19}|[0-9A-Fa-f]{2}(?:-[0-9A-Fa-f]{2}){5,19}"
+                  r"|[0-9A-Fa-f]{4}(?:\.[0-9A-Fa-f]{4}){2,9}")
+_GO_DURATION = re.compile(r"[-+]?(?:0|(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:ns|us|µs|μs|ms|s|m|h))+)")
+_RATE = re.compile(r"[0-9]+(?:\.[0-9]+)* ?[kKmMgGtTpP]?[iI]?[bB]?")
+_PORT_PART = re.compile(r"([0-9]+)(?:-([0-9]+))?")
+
+
+def _check_compose_formats(r: Reader, where: KeyPath, extra: dict) -> None:
+    """Values in a shape the schema allows and Compose or Docker refuses (probe J, item 11)."""
+    swappiness = extra.get("mem_swappiness")
+    if isinstance(swappiness, int) and not isinstance(swappiness, bool) and not -1 <= swappiness <= 100:
+        r.error(where + ("mem_swappiness",), "must be 0-100 (Docker's range; -1 leaves the default)")
+    grace = extra.get("stop_grace_period")
+    if isinstance(grace, str) and not _GO_DURATION.fullmatch(grace.strip()):
+        r.error(where + ("stop_grace_period",), f"{shown(grace)} is not a duration: e.g. 10s, 1m30s")
+    for key in ("cpu_rt_runtime", "cpu_rt_period"):
+        value = extra.get(key)
+        if isinstance(value, str) and not value.strip().isdigit():
+            r.error(where + (key,), f"{shown(value)}: Compose v2 reads {key} as a whole number of microseconds; "
+                                    "write it so, e.g. 950000")
+    for i, port in enumerate(extra["ports"] if isinstance(extra.get("ports"), list) else []):
+        if any(n > 65535 for n in _port_numbers(port)):
+            r.error(where + ("ports", i), f"{shown(port)}: a port number is at most 65535")
+    blkio = extra.get("blkio_config")
+    for key, limits in (blkio.items() if isinstance(blkio, dict) else []):
+        for i, limit in enumerate(limits if isinstance(limits, list) else []):
+            rate = limit.get("rate") if isinstance(limit, dict) else None
+            if isinstance(rate, str) and not (_RATE if key.endswith("_bps") else _ASCII_DIGITS).fullmatch(rate):
+                what = "a size in bytes per second, e.g. 10mb" if key.endswith("_bps") else "a whole number"
+                r.error(where + ("blkio_config", key, i, "rate"), f"{shown(rate)} is not {what} (Compose refuses it)")
+
+
+_ASCII_DIGITS = re.compile(r"[0-9]+")
+
+
+def _port_numbers(port: Any) -> list[int]:
+    """The port numbers of a `ports:` entry: short syntax `[IP:][HOST[-HOST]:]CONTAINER[-CONTAINER][/PROTO]`,
+    a number, or the long form's target and published."""
+    if isinstance(port, dict):
+        return [v for v in (port.get("target"), port.get("published")) if isinstance(v, int)]
+    if isinstance(port, (int, float)) and not isinstance(port, bool):
+        return [int(port)]
+    parts = str(port).split("/", 1)[0].rsplit(":", 2)
+    numbers = []
+    for part in parts[-2:] if len(parts) > 1 else parts:
+        found = _PORT_PART.fullmatch(part.strip())
+        if found:    # a number of more than 6 digits is too big; int() of 5,000 digits raises
+            numbers += [int(n) if len(n) <= 6 else 10**6 for n in found.groups() if n]
+    return numbers
 
 
 def _check_ulimit(r: Reader, kp: KeyPath, soft: int, hard: int) -> None:

@@ -38,8 +38,8 @@ from rosdeploy import __version__
 from rosdeploy.commands import Command
 from rosdeploy.errors import ChannelRefused, ConnectError, HostKeyError, RemoteError
 from rosdeploy.model import Host
-from rosdeploy.transport import (Result, SSHOptions, SSHTransport, connect, known_hosts_for, mtime_ns,
-                                 ssh_config_paths, succeeded)
+from rosdeploy.transport import (Result, SSHOptions, SSHTransport, connect, known_hosts_for, mtime_ns, port_given,
+                                 ssh_config_files, succeeded)
 
 PROTOCOL = 1
 MAX_SOCKET_PATH = 107     # bytes: sockaddr_un's sun_path, less its NUL
@@ -140,13 +140,16 @@ def _read(sock: socket.socket, size: int, allow_eof: bool) -> bytes | None:
 def host_doc(host: Host) -> dict:
     """What a transport reads of a Host: its address, and which known_hosts to trust."""
     return {"name": host.name, "address": host.address, "port": host.port, "user": host.user,
-            "key_file": host.key_file, "known_hosts": host.vars.get("rosdeploy_known_hosts")}
+            "key_file": host.key_file, "known_hosts": host.vars.get("rosdeploy_known_hosts"),
+            "port_given": port_given(host), "key_file_var": host.key_file_var}
 
 
 def host_from(doc: dict) -> Host:
     known = {"rosdeploy_known_hosts": doc["known_hosts"]} if doc.get("known_hosts") else {}
-    return Host(name=doc["name"], groups=(), vars=known, address=doc["address"], port=int(doc["port"]),
-                user=doc.get("user"), key_file=doc.get("key_file"))
+    # an explicit ansible_port (22 too) wins over the ssh config's Port here as in a direct connection
+    given = {"ansible_port": int(doc["port"])} if doc.get("port_given") else {}
+    return Host(name=doc["name"], groups=(), vars={**known, **given}, address=doc["address"], port=int(doc["port"]),
+                user=doc.get("user"), key_file=doc.get("key_file"), key_file_var=str(doc.get("key_file_var") or ""))
 
 
 def command_doc(command: Command) -> dict:
@@ -171,8 +174,8 @@ def raise_error(host: str, doc: dict) -> None:
 def connection_key(host: Host, options: SSHOptions) -> tuple:
     """Same robot, same user and key, same trust files and ssh configs as they are now: same
     connection. File mtimes are part of it, so an edited known_hosts or ssh config is honoured at once."""
-    files = [*known_hosts_for(host, options), *ssh_config_paths(options)]
-    return (host.address, host.port, host.user, host.key_file, options.connect_timeout,
+    files = [*known_hosts_for(host, options), *ssh_config_files(options)]    # Included configs too
+    return (host.address, host.port, port_given(host), host.user, host.key_file, options.connect_timeout,
             options.ssh_config, tuple((f, mtime_ns(f)) for f in files))
 
 

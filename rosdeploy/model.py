@@ -9,7 +9,9 @@ robot) without anyone mutating it underneath the others.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
+import hmac
 from dataclasses import dataclass, field
 from functools import cached_property
 from types import MappingProxyType
@@ -201,6 +203,24 @@ class FleetSpec:
 
 # ----------------------------------------------------------------------- render
 
+_KEY_CONTEXT = b"rosdeploy: content address of secret content\0"
+
+
+@functools.lru_cache(maxsize=64)     # a fleet's robots mostly share their vault files: one key for all
+def secret_key(material: frozenset[str]) -> bytes:
+    """The key of secret content's digests, from secret material only the controller holds (the
+    robot's vault values): never written anywhere. Stable for the same material, and length-
+    prefixed, so no two sets of texts give one key. Its limit: a guess must hold every vault value
+    of the robot, but when the secret is the robot's only one, it is its own key. So a project
+    keys with its vault passwords instead (project._address_key): then a rekey, not a changed
+    vault value elsewhere, recreates the services that read a secret."""
+    digest = hashlib.sha256(_KEY_CONTEXT)
+    for text in sorted(material):
+        data = text.encode("utf-8", "surrogatepass")
+        digest.update(len(data).to_bytes(8, "big") + data)
+    return digest.digest()
+
+
 @dataclass(frozen=True)
 class RenderedFile:
     name: str           # relative path inside the release dir, e.g. "compose.yml", ".env"
@@ -222,14 +242,21 @@ class RenderedRelease:
     # compose.yml as data when the built-in template wrote it (rosdeploy.compose_data), so the
     # checks need not parse it back; None for a user's own compose template. Not part of the digest.
     compose_data: Any = field(default=None, compare=False, repr=False)
+    # the key of its secret files' digests (secret_key): the renderer's; None: from secret_values
+    secret_key: bytes | None = field(default=None, compare=False, repr=False)
 
     @cached_property   # frozen: the files never change; 5,000 robots' tables and plans ask often
     def digest(self) -> str:
-        """sha256 over names, modes and contents of every file: the release's identity."""
+        """sha256 over names, modes and contents of every file: the release's identity. A file
+        holding secrets (.env, a `secret: true` file) goes in as its HMAC under secret_key: the
+        release id is a folder name on the robot and in every status, and a plain hash of the
+        .env would let anyone who reads the other files test guesses of a short secret."""
         h = hashlib.sha256()
         for f in self.files:
             h.update(f"{f.name}\0{f.mode:o}\0".encode())
-            h.update(f.content.encode())
+            data = f.content.encode("utf-8", "surrogatepass")
+            h.update(hmac.new(self.secret_key or secret_key(self.secret_values), data, hashlib.sha256).digest()
+                     if f.secret or (f.mode & 0o077) == 0 else data)
             h.update(b"\0")
         return h.hexdigest()
 

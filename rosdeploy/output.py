@@ -2,7 +2,8 @@
 
 `Output` writes human text to a terminal and, with json=True, keeps stdout for
 one JSON document so CI can parse it while humans still see errors on stderr.
-Secrets registered with `mask()` are replaced in every line written.
+Secrets registered with `mask()` are replaced in every line written, and in every string value
+of the JSON document before it is serialized (its keys, numbers, booleans and nulls never).
 
 Text from robots (history, lock owners, manifests, container labels) goes into these lines,
 and a robot may be corrupt or hostile: every control character written is shown escaped
@@ -17,7 +18,9 @@ import re
 import secrets
 import sys
 import threading
-from typing import Any, Iterable, Sequence, TextIO
+from typing import Any, Callable, Iterable, Sequence, TextIO
+
+from rosdeploy.errors import UNSEEN
 
 MASK = "********"
 LONG_SECRET = 8     # characters from which a secret is masked inside words too (Output.masked)
@@ -66,11 +69,26 @@ class Output:
         of a message is still masked there; a secret that short is a weak one (check warns)."""
         if not self._secrets:
             return text
+        return self._compiled().sub(MASK, text)
+
+    def _compiled(self) -> re.Pattern[str]:
         if self._pattern is None:
             parts = [re.escape(s) if len(s) >= LONG_SECRET else rf"(?<![\w./-]){re.escape(s)}(?![\w/-]|\.\w)"
                      for s in sorted(self._secrets, key=len, reverse=True)]
             self._pattern = re.compile("|".join(parts))
-        return self._pattern.sub(MASK, text)
+        return self._pattern
+
+    def _masked_text(self, text: str) -> str:
+        """Human text masked, but for the `error:` / `warning[rule]` a line starts with, which
+        scripts grep for: a vault password `error` made every error line `********: ...`. A
+        secret running past that head is masked whole, head included. Elsewhere in the text a
+        secret equal to one of our words is masked (a secret `error` gives `1 ********(s)`):
+        the line stays readable, and the head it keeps is written whatever the secrets are."""
+        head = _HEAD.match(text)
+        if head is None or not self._secrets:
+            return self.masked(text)
+        end = head.end()
+        return self._compiled().sub(lambda m: m[0] if m.end() <= end else MASK, text)
 
     # --- writing --------------------------------------------------------------
     def line(self, text: str = "") -> None:
@@ -96,10 +114,11 @@ class Output:
             return
         self._write_document(data)
 
-    def amend(self, fields: dict) -> None:
-        """Add to the held document (a failure after the command built it: its error)."""
+    def amend(self, fields: dict, replace: bool = True) -> None:
+        """Add to the held document (a failure after the command built it: its error); with
+        replace=False, only the fields it does not have yet."""
         if self._held is not None:
-            self._held.update(fields)
+            self._held.update(fields if replace else {k: v for k, v in fields.items() if k not in self._held})
 
     def finish(self, code: int) -> None:
         """Write the held document with `ok` and `exit_code`: every document carries them, a
@@ -109,10 +128,15 @@ class Output:
             self._write_document({**held, "ok": code == 0, "exit_code": code})
 
     def _write_document(self, data: Any) -> None:
-        text = json.dumps(data, indent=2, sort_keys=True, default=str)
+        """Masked as data, then serialized, never the other way round: masking the JSON text missed
+        a secret json.dumps had escaped (`S\\u00e9cr\\u00e9t`, `back\\\\slash\\"`), and a secret equal
+        to a word of the document (`null`, `true`, `1252`, `exit_code`) rewrote its syntax into
+        text no JSON reader takes, or took its `exit_code` away."""
+        data = masked_values(data, self.masked)
+        text = json.dumps(data, indent=2, sort_keys=True)
         if "\\udc" in text:    # a non-UTF-8 byte from argv or a file name: a lone surrogate, not Unicode
-            text = json.dumps(_unicode(data), indent=2, sort_keys=True, default=str)
-        self._write(self.stdout, text)   # json.dumps escaped every control character already
+            text = json.dumps(_unicode(data), indent=2, sort_keys=True)
+        self._write(self.stdout, text, mask=False)   # json.dumps escaped every control character already
         self.documented = True
 
     def table(self, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
@@ -146,10 +170,10 @@ class Output:
             self.stdout.write("".join(_shown(line) + "\n" for line in self._live))   # its painted marks too
             self.stdout.flush()
 
-    def _write(self, stream: TextIO, text: str) -> None:
+    def _write(self, stream: TextIO, text: str, mask: bool = True) -> None:
         with self._lock:
             self._erase_live()
-            stream.write(_shown(self.masked(text)) + "\n")
+            stream.write(_shown(self._masked_text(text) if mask else text) + "\n")
             stream.flush()
             self._draw_live()
 
@@ -161,8 +185,11 @@ _STYLES = {"red": "31", "green": "32", "yellow": "33", "bold": "1", "dim": "2"}
 # a mark, and every escape code it does carry is escaped with the rest of its control characters.
 _KEY = "".join(chr(0xF0000 + secrets.randbelow(0xFFFE)) for _ in range(4))
 _MARK = re.compile(f"{_KEY}([0-9]+){_KEY}")
-# C0 and C1 controls and DEL; lone surrogates too (no terminal encoding writes them).
-_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\ud800-\udfff]")
+# What errors.one_line escapes (controls, and the characters that reverse, hide or split a line);
+# lone surrogates too (no terminal encoding writes them).
+_CONTROL = re.compile(f"[{UNSEEN}\ud800-\udfff]")
+# The severity a line of ours starts with (after its colour, if painted): kept when masking.
+_HEAD = re.compile(f"(?:{_KEY}[0-9]+{_KEY})?(?:error|warning|info)(?:: |\\[[a-z0-9-]+\\] )")
 
 
 def one_line(value: object) -> str:
@@ -184,6 +211,21 @@ def _escaped(match: re.Match[str]) -> str:
     code = ord(match[0])
     named = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}.get(match[0])
     return named or (f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}")
+
+
+def masked_values(data: Any, masked: Callable[[str], str]) -> Any:
+    """`data` (a document about to be serialized) with every string value passed through `masked`.
+    Keys are rosdeploy's own names and stay; numbers, booleans and null are never rewritten (a
+    secret `1252` is no `line`, a secret `null` no `fix`)."""
+    if isinstance(data, str):
+        return masked(data)
+    if isinstance(data, dict):
+        return {key: masked_values(value, masked) for key, value in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [masked_values(value, masked) for value in data]
+    if data is None or isinstance(data, (bool, int, float)):
+        return data
+    return masked(str(data))    # a Path, a set: written as its text, so masked as text
 
 
 def _unicode(data: Any) -> Any:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import functools
 import gc
 from contextlib import closing, contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
 from rosdeploy import forked
@@ -40,6 +40,9 @@ OnRelease = Callable[[RenderedRelease], None] | None
 class Project:
     spec: FleetSpec
     inventory: Inventory
+    # the vault passwords read: they key the digests of secret content (model.secret_key), so a
+    # digest on a robot is no test of a guess of a short secret; never written anywhere
+    vault_passwords: tuple[bytes, ...] = field(default=(), repr=False)
 
     def targets(self, limit: str | None = None, warnings: list[Problem] | None = None) -> tuple[Host, ...]:
         """The robots `--limit` selects (all of them without one), in inventory order; a term that
@@ -64,7 +67,8 @@ def load_project(fleet_path: str, *, inventory: str | None = None, version: str 
     with gc_paused():
         spec = load_fleet(fleet_path, inventory=inventory, version=version)
         vault = vault or Vault(password_file=vault_password_file, prompt=prompt)
-        return Project(spec, load_inventory(spec.inventory, vault=vault))
+        inventory_ = load_inventory(spec.inventory, vault=vault)
+        return Project(spec, inventory_, vault.read_passwords())
 
 
 @contextmanager
@@ -103,6 +107,15 @@ def deployable(project: Project, hosts: Sequence[Host], on_release: OnRelease = 
     return releases, problems
 
 
+def _address_key(project: Project) -> bytes | None:
+    """The key of secret content's digests: from the vault passwords, else (none was read, so no
+    vault value exists) each robot's own vault values (model.secret_key)."""
+    from rosdeploy.model import secret_key
+    if not project.vault_passwords:
+        return None
+    return secret_key(frozenset(p.decode("latin-1") for p in project.vault_passwords))
+
+
 OnTargets = dict[str, list[tuple[Problem, str]]]     # rule id -> [(finding, robot)], robots in order
 
 
@@ -118,7 +131,7 @@ def _render_all(project: Project, hosts: Sequence[Host], on_release: OnRelease =
     from rosdeploy.render import Renderer
     blocked = checks.blocked_hosts(project.spec, hosts)
     try:
-        renderer = Renderer(project.spec)
+        renderer = Renderer(project.spec, secret_key=_address_key(project))
     except RenderError as exc:
         return {}, list(exc.problems), {}
     releases: dict[str, RenderedRelease] = {}

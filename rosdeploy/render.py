@@ -13,6 +13,7 @@ syntax of the file it lands in.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import ipaddress
 import json
@@ -28,16 +29,17 @@ import yaml
 from rosdeploy import restarts, rotation
 from rosdeploy.checks import host_problem, parse_env
 from rosdeploy.compose_data import compose_data
-from rosdeploy.errors import Problem, RenderError, shown
-from rosdeploy.files import FILES_DIR, FileRenderer
+from rosdeploy.errors import InputError, Problem, RenderError, shown
+from rosdeploy.files import FILES_DIR, MAX_TEMPLATE_BYTES, FileRenderer
 from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
-from rosdeploy.inventory.templating import (not_quoted, secret_read, secret_reads, shown_unless_secret,
-                                            unless_secret)
-from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice
+from rosdeploy.inventory.draft import strings
+from rosdeploy.inventory.templating import (HostVars, not_quoted, raw_vars, secret_read, secret_reads,
+                                            shown_unless_secret, unless_secret)
+from rosdeploy.model import FleetSpec, Host, RenderedFile, RenderedRelease, Service, UdevDevice, secret_key
 from rosdeploy.sandbox import (ContainedLoader, Layered, Sandbox, ShippedSandbox, describe, render_value,
                                shipped_cache,
                                value_template)
-from rosdeploy.yamlsrc import Doc, Unsafe
+from rosdeploy.yamlsrc import Doc, Unsafe, read_bytes
 
 # rosdeploy/templates is a link to the repo's top-level templates/ in a checkout, and a real
 # directory in an installed wheel (setuptools copies what the link points at).
@@ -83,7 +85,9 @@ _LINE_BREAKS = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
 MAX_TUNABLE = 2**31 - 1
 # SO_RCVBUF is an int: CycloneDDS cannot ask for a socket buffer of 2 GiB or more.
 MAX_SOCKET_BUFFER = 2**31 - 1
-_SOCKET_BUFFER_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)[ \t]*([kKMG]i?)?B?")
+# CycloneDDS's memsize units, matched exactly (its unittab_memsize; kB is 1024 there too): it
+# refuses `10k`, `10M` or `10KB`, and the robot's DDS would not start
+_SOCKET_BUFFER_RE = re.compile(r"([0-9]+(?:\.[0-9]+)?)(?: *(B|KiB|kB|MiB|MB|GiB|GB))?")
 _LOGROTATE_SIZE_RE = re.compile(r"([0-9]+)([kMG]?)")
 
 
@@ -92,7 +96,7 @@ def _int_between(low: int, high: int = MAX_TUNABLE) -> Any:
 
 
 def _size_within(pattern: re.Pattern, low: int, high: int) -> Any:
-    """A size `pattern` reads as (number, unit of k, M or G, binary as CycloneDDS and logrotate
+    """A size `pattern` reads as (number, unit of B, k, M or G, binary as CycloneDDS and logrotate
     read them) between low and high bytes."""
     def check(value: Any) -> bool:
         try:
@@ -101,7 +105,7 @@ def _size_within(pattern: re.Pattern, low: int, high: int) -> Any:
             return False
         if not match:
             return False
-        scale = 1024 ** ("kMG".index(match.group(2)[0].replace("K", "k")) + 1) if match.group(2) else 1
+        scale = 1024 ** "BkMG".index((match.group(2) or "B")[0].replace("K", "k"))
         return low <= float(match.group(1)) * scale <= high
     return check
 
@@ -144,6 +148,25 @@ class _OnlyInEnv(Sequence[tuple[str, str]]):
     def __getitem__(self, index: Any) -> Any:
         raise _Rejected("`secrets` holds the vault values that go to .env, and only env.j2 may read them: "
                         "for the names, read the service's `secrets` (as compose.yml.j2 does)")
+
+
+class _EnvSecrets(Sequence[tuple[str, str]]):
+    """env.j2's `secrets`: the (name, value) pairs, noting which names were read. An error raised
+    after reading one is not quoted: masking the output finds a secret's exact text only, not
+    `value|reverse|join` in a "No filter named .." or a TemplateNotFound."""
+
+    def __init__(self, secrets: Sequence[tuple[str, str]]) -> None:
+        self._secrets = tuple(secrets)
+        self._read: dict[str, None] = {}     # env names, in the order read (private: the sandbox refuses `_`)
+
+    def __len__(self) -> int:
+        return len(self._secrets)
+
+    def __getitem__(self, index: Any) -> Any:
+        item = self._secrets[index]
+        for name, _ in (item if isinstance(index, slice) else (item,)):
+            self._read.setdefault(name, None)
+        return item
 
 
 # ------------------------------------------------------------------- filters
@@ -199,16 +222,19 @@ def xml(value: Any) -> str:
 def env_value(value: Any) -> str:
     """Quote for .env so Compose v2 (compose-go) and v1 (python-dotenv) read back the same string.
 
-    Single quotes: neither interpolates `$` nor reads escapes, except that v1 turns `\\\\` and
-    `\\'` into one character and v2 does not, so those sequences are refused rather than
-    read two ways.
+    Single quotes: v2 neither interpolates `$` nor reads escapes there; v1 turns `\\\\` and `\\'`
+    into one character, and expands `${NAME}` even inside single quotes (python-dotenv's
+    interpolation, which `$$` or a backslash does not escape). No quoting is read the same by
+    both, so those sequences are refused rather than read two ways.
     """
     text = str(value)
     if re.fullmatch(r"[A-Za-z0-9_./:@%+,=-]*", text):
         return text
-    if "'" in text or _LINE_BREAKS.search(text.replace("\t", "")) or "\\\\" in text or text.endswith("\\"):
-        raise _Rejected("a .env value may not contain a newline, a control character, a single quote, "
-                        "a double backslash or a trailing backslash (Compose v1 and v2 would read it differently)")
+    if "'" in text or _LINE_BREAKS.search(text.replace("\t", "")) or "\\\\" in text or text.endswith("\\") \
+            or "${" in text:
+        raise _Rejected("a .env value may not contain a newline, a control character, a single quote, `${`, "
+                        "a double backslash or a trailing backslash (Compose v1 and v2 would read it differently: "
+                        "v1 expands `${NAME}` even in quotes)")
     return f"'{text}'"
 
 
@@ -383,6 +409,50 @@ def _device_group(path: str, logical: str, udev: UdevDevice | None) -> str | Non
     return None
 
 
+# ------------------------------------------------------------ template folder
+
+class _NotATemplate(jinja2.TemplateError):
+    """A template folder's entry that cannot be read as a template: at its own path."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        super().__init__(f"{path}: {reason}")
+        self.path, self.reason = str(path), reason
+
+
+class _TemplateFolder(ContainedLoader):
+    """A user's template folder, each file read once as yamlsrc reads configuration: a regular file
+    (non-blocking open, so a FIFO cannot hang it) of at most MAX_TEMPLATE_BYTES, inside the folder.
+    A name that exists but is no such file (a FIFO, a folder, a link to a missing file) is an
+    error, not TemplateNotFound: the ChoiceLoader would quietly use the built-in template."""
+
+    def get_source(self, environment: jinja2.Environment, template: str) -> tuple[str, str, Any]:
+        pieces = jinja2.loaders.split_template_path(template)    # TemplateNotFound on `..`
+        root = Path(self.searchpath[0])
+        path = root.joinpath(*pieces)
+        if not (path.is_symlink() or path.exists()):
+            raise jinja2.TemplateNotFound(template)
+        try:
+            inside = path.resolve().is_relative_to(root.resolve())
+        except (OSError, RuntimeError) as exc:     # a link loop (RuntimeError before Python 3.13)
+            raise _NotATemplate(path, f"cannot be opened ({exc}): fix the link") from None
+        if not inside:
+            raise jinja2.sandbox.SecurityError(f"template {template} is a link to a file outside the template folder: "
+                                               "copy the file into the folder instead")
+        if path.is_symlink() and not path.exists():
+            raise _NotATemplate(path, "a link to a missing file: fix the link, or remove it")
+        if path.is_dir():      # read_bytes would say only "Is a directory"
+            raise _NotATemplate(path, "not a regular file but a folder: a template is a text file")
+        try:
+            data = read_bytes(str(path), MAX_TEMPLATE_BYTES, "a template (a text file)")
+        except InputError as exc:
+            raise _NotATemplate(path, exc.problems[0].message) from None
+        try:
+            return data.decode("utf-8"), str(path), lambda: True
+        except UnicodeDecodeError as exc:
+            raise jinja2.TemplateSyntaxError(f"byte 0x{data[exc.start]:02x} is not UTF-8: save the template as UTF-8",
+                                             data[:exc.start].count(b"\n") + 1, template, str(path)) from None
+
+
 # ----------------------------------------------------------------- renderer
 
 def _builtin_environment() -> jinja2.Environment:
@@ -404,8 +474,11 @@ _BUILTIN = _builtin_environment()
 class Renderer:
     """Compiles the templates of one FleetSpec once; `render(host)` is then cheap and pure."""
 
-    def __init__(self, spec: FleetSpec) -> None:
+    def __init__(self, spec: FleetSpec, secret_key: bytes | None = None) -> None:
+        """`secret_key`: the key of secret content's digests (model.secret_key), when the caller
+        derives one from the vault password; else each robot's is derived from its vault values."""
         self.spec = spec
+        self.secret_key = secret_key
         if spec.rmw not in RMW:
             raise RenderError([self._problem(("ros", "rmw"),
                                              f"unknown rmw {shown(spec.rmw)} (use {' or '.join(RMW)})")])
@@ -423,6 +496,10 @@ class Renderer:
         compose_file = self.templates[COMPOSE_FILE].filename or ""
         self.builtin_compose = Path(compose_file).resolve().parent == TEMPLATE_DIR.resolve()
         self.statics = tuple(self._static(s) for s in spec.services)
+        self.secret_vars: dict[str, str] = {}      # .env name -> the var it reads (the first service's)
+        for st in self.statics:
+            for name, var in st.secrets:
+                self.secret_vars.setdefault(name, var)
         self.images = tuple(sorted({s.image for s in self.statics}))
         self.image_vars = self._image_vars()
         try:
@@ -448,7 +525,7 @@ class Renderer:
 
     def _environment(self) -> jinja2.Environment:
         """Sandboxed (rosdeploy.sandbox): fleet values and template folders are configuration, not code."""
-        loaders: list[jinja2.BaseLoader] = [ContainedLoader(str(self.override))] if self.override else []
+        loaders: list[jinja2.BaseLoader] = [_TemplateFolder(str(self.override))] if self.override else []
         loaders.append(jinja2.FileSystemLoader(str(TEMPLATE_DIR)))
         env = Sandbox(plain_types=_VIEWS,
                       loader=jinja2.ChoiceLoader(loaders),
@@ -468,8 +545,9 @@ class Renderer:
         if self.override is None:
             return {}
         known = set(builtin.values()) | {"fastdds.xml.j2", "cyclonedds.xml.j2"}
+        # every entry, not only files: a FIFO or a folder named NAME.j2 is refused when compiled (_TemplateFolder)
         extra = {p.name[:-3]: p.name for p in sorted(self.override.glob("*.j2"))
-                 if p.is_file() and p.name not in known and not p.name.startswith("_")}
+                 if p.name not in known and not p.name.startswith("_")}
         problems = [Problem(str(self.override / extra[name]), None, "", f"{name} {why}")
                     for name, why in sorted(_taken_names(builtin).items()) if name in extra]
         problems += [Problem(str(self.override / template), None, "", why)
@@ -488,7 +566,9 @@ class Renderer:
                                        f"template syntax error: {exc.message}")]) from exc
         except jinja2.TemplateNotFound as exc:
             raise RenderError([self._problem(("templates",), f"template {exc.name} not found")]) from exc
-        except jinja2.TemplateError as exc:   # e.g. a link out of the template folder (sandbox.ContainedLoader)
+        except _NotATemplate as exc:     # a FIFO, a folder, a dangling link, over MAX_TEMPLATE_BYTES
+            raise RenderError([Problem(exc.path, None, "", exc.reason)]) from exc
+        except jinja2.TemplateError as exc:   # e.g. a link out of the template folder (_TemplateFolder)
             raise RenderError([self._problem(("templates",), exc.message or str(exc))]) from exc
 
     def _static(self, svc: Service) -> _Static:
@@ -502,6 +582,11 @@ class Renderer:
             if not key or "=" in key or _LINE_BREAKS.search(key):
                 problems.append(self._problem(where + ("environment",), f"invalid variable name {shown(key)}"))
             elif not isinstance(value, Unsafe) and ("{{" in str(value) or "{%" in str(value)):
+                if len(str(value)) > MAX_TEMPLATE_BYTES:     # compiled whole, before any bound of the sandbox
+                    problems.append(self._problem(where + ("environment", key), (
+                        f"a templated value of over {MAX_TEMPLATE_BYTES:,} characters: write the value itself, or "
+                        "put the logic in the inventory")))
+                    continue
                 try:
                     templated[key] = value_template(self.env, str(value))
                 except jinja2.TemplateSyntaxError as exc:
@@ -551,7 +636,8 @@ class Renderer:
     def render(self, host: Host) -> RenderedRelease:
         problems: list[Problem] = []
         context = self._context(host, problems)
-        own = self.robot_files.render(host, context["vars"], problems)
+        key = self.secret_key or secret_key(frozenset(host.secret_values))
+        own = self.robot_files.render(host, context["vars"], problems, key)
         if problems:
             raise RenderError(problems)
         # compose.yml last: it names the other files by content (restarts.stored) and carries
@@ -560,7 +646,7 @@ class Renderer:
         dds = next(f for f in rendered if f.name == self.dds_file)
         store = [restarts.stored(dds)]
         context["dds_source"] = restarts.mount_source(store[0])
-        context["services"] = [restarts.with_hash(_with_mounts(sv, own.mounts.get(sv.name, ())), context)
+        context["services"] = [restarts.with_hash(_with_mounts(sv, own.mounts.get(sv.name, ())), context, key)
                                for sv in context["services"]]
         rendered.append(self._file(COMPOSE_FILE, self.templates[COMPOSE_FILE], context, host))
         files = sorted(rendered + store + list(own.files), key=lambda f: f.name)
@@ -568,7 +654,7 @@ class Renderer:
         return RenderedRelease(host=host.name, project=self.spec.project, version=self.spec.version,
                                files=tuple(files), images=self.images,
                                secret_values=frozenset(value for _, value in context["secrets"]) | own.secret_values,
-                               compose_data=self._compose_data(context, files))
+                               compose_data=self._compose_data(context, files), secret_key=key)
 
     def _compose_data(self, context: Mapping[str, Any], files: list[RenderedFile]) -> Any:
         """(as written, as compose reads it with the .env) for the built-in compose template."""
@@ -598,7 +684,7 @@ class Renderer:
         with secret_reads() as secret:
             peers = self._peers(host, variables, problems)
             out = {"peers": peers, "ipv6_peers": tuple(p for p in peers if _is_ipv6(p)),
-                   "logs_glob": f"{self._deploy_root(host, variables)}/{self.spec.project}/logs/*/*.log",
+                   "logs_glob": f"{self._deploy_root(host, variables, problems)}/{self.spec.project}/logs/*/*.log",
                    **self._tunables(host, variables, problems)}
         problems.extend(_host_problem(host, var, f"{secret_read(var, source)} is written to "
                                                  "non-secret files (DDS profile, compose.yml, logrotate): set it "
@@ -698,10 +784,9 @@ class Renderer:
                                                          f"{shown(var)}, which is not defined for this robot"))
             else:
                 value = host.vars[var]
-                try:
-                    env_value(value)
-                except _Rejected as exc:
-                    problems.append(_host_problem(host, var, f"secret {name}: {exc}"))
+                why = _secret_problem(name, value)
+                if why:
+                    problems.append(_host_problem(host, var, f"secret {name}: {why}"))
                     continue
                 out.append((name, str(value)))
         return out
@@ -761,13 +846,33 @@ class Renderer:
         """Metatraffic unicast ports (RTPS: 7400 + 250*domain + 10 + 2*participant) of participants 0..3."""
         return tuple(7400 + 250 * domain + 10 + 2 * pid for pid in range(FASTDDS_PARTICIPANT_SLOTS))
 
-    def _deploy_root(self, host: Host, variables: Mapping[str, Any]) -> str:
-        """deploy_root made absolute for logrotate, which does not expand "~"."""
-        root = self.spec.deploy_root.rstrip("/") or "/"
+    def _deploy_root(self, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> str:
+        """The robot's deploy root, as deploy reads it (Deployer.root), made absolute for logrotate,
+        which does not expand "~"."""
+        root = str(host.vars.get("rosdeploy_deploy_root") or self.spec.deploy_root).rstrip("/") or "/"
         if root != "~" and not root.startswith("~/"):
             return root
-        home = variables.get("rosdeploy_home") or ("/root" if host.user in (None, "root") else f"/home/{host.user}")
+        home = variables.get("rosdeploy_home")
+        if not home:
+            home = "/root" if host.user in (None, "root") else f"/home/{host.user}"
+            self._check_user_plain(host, problems)
         return str(home).rstrip("/") + root[1:]
+
+    @staticmethod
+    def _check_user_plain(host: Host, problems: list[Problem]) -> None:
+        """The SSH user, read when the inventory was loaded (outside the renderer's secret_reads),
+        becomes the logs' home folder in logrotate.conf: refused at its var when it comes from a
+        vault, in any form (`{{ token|reverse|join }}` no longer holds the vault text)."""
+        var = next((v for v in ("ansible_ssh_user", "ansible_user") if v in host.vars), None)
+        if var is None:
+            return
+        source_of = getattr(host.vars, "secret_source", None)
+        source = source_of(var) if source_of else (var if host.user in host.secret_values else None)
+        if source is not None:
+            problems.append(_host_problem(host, var, (
+                f"a secret value would be written to {LOGROTATE_FILE}, which is not secret: the logs' home folder "
+                f"/home/<user> comes from {secret_read(var, source)}; set rosdeploy_home (the user's home "
+                "folder, e.g. /home/ubuntu) in a plain vars file")))
 
     def _tunables(self, host: Host, variables: Mapping[str, Any], problems: list[Problem]) -> dict[str, Any]:
         out = {}
@@ -796,16 +901,18 @@ class Renderer:
         return _host_problem(host, name, message)
 
     def _file(self, out: str, template: jinja2.Template, context: Mapping[str, Any], host: Host) -> RenderedFile:
-        if out != ENV_FILE:
-            context = {**context, "secrets": _OnlyInEnv(context["secrets"])}
+        env_secrets = _EnvSecrets(context["secrets"])
+        context = {**context, "secrets": env_secrets if out == ENV_FILE else _OnlyInEnv(context["secrets"])}
         try:
             with secret_reads() as secret:
                 content = template.render(context)
         except (jinja2.TemplateError, _Rejected) as exc:
-            raise RenderError([self._template_problem(exc, template, host, read=secret)]) from exc
+            hidden = self._hidden_error(host, secret, env_secrets)
+            raise RenderError([self._template_problem(exc, template, host, hidden=hidden)]) from exc
         except Exception as exc:   # 1/0, recursion, a bound: the template's fault, never an internal error
+            hidden = self._hidden_error(host, secret, env_secrets)
             raise RenderError([self._template_problem(jinja2.TemplateRuntimeError(describe(exc)), template, host,
-                                                      exc.__traceback__, secret)]) from exc
+                                                      exc.__traceback__, hidden)]) from exc
         if out == ENV_FILE:
             return RenderedFile(out, content, mode=0o600, secret=bool(context["secrets"]))
         if secret:
@@ -815,32 +922,151 @@ class Renderer:
                                for var, source in sorted(secret.items())])
         return RenderedFile(out, content)
 
+    def _hidden_error(self, host: Host, read: Mapping[str, str], env_secrets: _EnvSecrets) -> str | None:
+        """Why a template's error is not shown, or None: it read a vault var (or a var computed from
+        one), or env.j2 read a `secrets` value, before it failed."""
+        if read:
+            return not_quoted(*min(read.items()))
+        if env_secrets._read:
+            name = next(iter(env_secrets._read))
+            return (f"this fails after reading secret {name} (var {shown(self.secret_vars[name])}); the error is not "
+                    "shown, as it may quote the secret or a value computed from it (check the value with "
+                    "`rosdeploy vault view`)")
+        return None
+
     def _template_problem(self, exc: Exception, template: jinja2.Template, host: Host,
-                          tb: Any = None, read: Mapping[str, str] | None = None) -> Problem:
-        """Locate an error raised while rendering: the deepest frame that is template code. `read`:
-        the vault vars read before it failed, when the error must not be quoted."""
+                          tb: Any = None, hidden: str | None = None) -> Problem:
+        """Locate an error raised while rendering: the deepest frame that is template code. `hidden`:
+        said instead of the error, when it must not be quoted (see _hidden_error)."""
         file, line = template.filename or template.name or "?", None
         names = {t.filename for t in self.templates.values()}
+        # a partial that does not compile shows as a frame of its own (Jinja's rewritten traceback): skipped
+        partial = exc.filename if isinstance(exc, jinja2.TemplateSyntaxError) else None
         for frame, lineno in traceback.walk_tb(tb or exc.__traceback__):
             filename = frame.f_code.co_filename
-            if filename in names or filename.endswith(".j2"):   # included partials too
+            if (filename in names or filename.endswith(".j2")) and filename != partial:   # included partials too
                 file, line = filename, lineno
         message = getattr(exc, "message", None) or str(exc)
-        if read:
-            return Problem(file, line, "", f"robot {shown(host.name)}: {not_quoted(*min(read.items()))}")
+        if hidden:
+            return Problem(file, line, "", f"robot {shown(host.name)}: {hidden}")
+        included = f"included by {file}:{line}" if line else f"included by {file}"
+        if isinstance(exc, jinja2.TemplateSyntaxError) and partial:
+            return Problem(partial, exc.lineno, "", f"template syntax error: {exc.message} ({included})")
+        if isinstance(exc, _NotATemplate):       # a partial that is a FIFO, a folder, a dangling link
+            return Problem(exc.path, None, "", f"{exc.reason} ({included})")
+        if isinstance(exc, jinja2.TemplateNotFound):
+            return Problem(file, line, "", f"robot {shown(host.name)}: {self._not_found(str(exc.name))}")
         missing = re.search(r"'([^']+)' is undefined|has no attribute '([^']+)'", message)
         what = f"undefined name {next(g for g in missing.groups() if g)!r}" if missing else message
         return Problem(file, line, "", f"robot {shown(host.name)}: {what}" + (f" ({message})" if missing else ""))
 
-    @staticmethod
-    def _check_leaks(host: Host, files: Iterable[RenderedFile]) -> None:
-        """compose.yml and the other files are not secret: a vault value in them is a leak."""
+    def _not_found(self, name: str) -> str:
+        """Why an include, import or extends found no template `name`."""
+        if name.startswith("/") or ".." in name.split("/"):
+            return (f"template {shown(name)} is outside the template folder: include, import or extend a template "
+                    "of the folder, by its name there")
+        folder = f"in {self.override} nor " if self.override else ""
+        return f"template {shown(name)} not found {folder}among rosdeploy's templates (check the name)"
+
+    def _check_leaks(self, host: Host, files: Iterable[RenderedFile]) -> None:
+        """compose.yml and the other files are not secret: a vault value in them is a leak. One
+        problem per file, at the vault var; a store/<digest>/ copy repeats a file already searched."""
         secrets = _searched(host)
-        leaked = sorted({f.name for f in files if f.name != ENV_FILE and not f.secret
-                         for s in secrets if s in f.content})
+        leaked = {f.name: found for f in files if f.name != ENV_FILE and not f.secret
+                  and not f.name.startswith(f"{restarts.STORE}/")
+                  for found in [[s for s in secrets if s in f.content]] if found}
         if leaked:
-            raise RenderError([_host_problem(host, "", f"a secret value would be written to {name}; pass it with "
-                                                       "`secrets:` so it goes to .env only") for name in leaked])
+            vault = _vault_texts(host)
+            raise RenderError([self._leak_problem(host, name, texts, vault) for name, texts in sorted(leaked.items())])
+
+    def _leak_problem(self, host: Host, name: str, texts: list[str], vault: Mapping[str, tuple[str, ...]]) -> Problem:
+        """`texts` (vault texts) found in the file `name`: which vault var they are, which var carried
+        them, and whether they are text the template or the fleet file holds anyway."""
+        sources = sorted({var for var, held in vault.items() for text in texts if text in held})
+        if not sources:    # host.vars is a plain mapping (no origins): only the robot is known
+            return _host_problem(host, "", f"a secret value would be written to {name}; pass it with `secrets:` so "
+                                           "it goes to .env only")
+        carried = _carrier(host, sources[0], texts)
+        what = secret_read(carried or sources[0], sources[0])
+        if len(sources) > 1:
+            what += f" (and vault var {', '.join(map(shown, sources[1:]))})"
+        if any(text in public for text in texts for public in self._public_texts(name)):
+            why = (f"the value of {what} is also text that the template or the fleet file writes there anyway (a "
+                   "word like `true`, the version, an image name), so this may be a coincidence: give the secret a "
+                   "longer, unguessable value; if the service needs it, pass it with `secrets:` (.env only)")
+        else:
+            why = f"{what} reaches it; pass it with `secrets:` so it goes to .env only"
+        return _host_problem(host, carried or sources[0],
+                             f"a secret value would be written to {name}, which is not secret: {why}")
+
+    def _public_texts(self, name: str) -> list[str]:
+        """Text that reaches the file `name` whatever the vault holds: its template's source, and every
+        string of the fleet file (values, names, versions)."""
+        texts = list(_strings_of(self.spec))
+        template = self.templates.get(name)
+        if template is not None and template.filename:
+            try:
+                texts.append(Path(template.filename).read_text(encoding="utf-8", errors="replace"))
+            except OSError:
+                pass
+        return texts
+
+
+def _vault_texts(host: Host) -> dict[str, tuple[str, ...]]:
+    """The robot's vault vars and the texts they hold (none when host.vars is a plain mapping)."""
+    if not isinstance(host.vars, HostVars):
+        return {}
+    raw = raw_vars(host.vars)
+    return {var: tuple(text for _, text in strings(raw[var], ())) for var in raw
+            if host.vars.secret_source(var) == var}
+
+
+def _carrier(host: Host, source: str, texts: list[str]) -> str | None:
+    """A var computed from vault var `source` whose value holds one of `texts` (the var a file
+    really read, e.g. ansible_user: "{{ token }}"), if one was read; else None."""
+    assert isinstance(host.vars, HostVars)      # _vault_texts found vault vars
+    for var in sorted(host.vars):
+        if var != source and host.vars.secret_source(var) == source:
+            value = host.vars[var]
+            if isinstance(value, str) and any(text in value for text in texts):
+                return var
+    return None
+
+
+def _strings_of(value: Any, depth: int = 0) -> Iterable[str]:
+    """Every string inside a fleet spec (dataclasses, mappings, sequences)."""
+    if isinstance(value, str):
+        yield value
+    elif depth > 20:
+        return
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for f in dataclasses.fields(value):
+            if f.name != "lines":
+                yield from _strings_of(getattr(value, f.name), depth + 1)
+    elif isinstance(value, Mapping):
+        for key, item in value.items():
+            yield from _strings_of(key, depth + 1)
+            yield from _strings_of(item, depth + 1)
+    elif isinstance(value, (list, tuple, set, frozenset)):
+        for item in value:
+            yield from _strings_of(item, depth + 1)
+
+
+def _secret_problem(name: str, value: Any) -> str | None:
+    """Why a var's value cannot be the .env value `name`, or None; never quoting the value."""
+    if isinstance(value, (Mapping, list, tuple, set)):
+        return (f"the var holds a {'mapping' if isinstance(value, Mapping) else 'list'}, not a string: a .env "
+                "value is one line of text")
+    if value is None or value == "":
+        # compose.yml reads it as ${NAME:?..}, which refuses an empty value on the robot; and None would
+        # be written as the text `None` (Ansible renders a null as empty)
+        return (f"the var is {'null' if value is None else 'empty'}, and compose refuses an empty {name} on the "
+                "robot: give it a value in the vault file")
+    try:
+        env_value(value)
+    except _Rejected as exc:
+        return str(exc)
+    return None
 
 
 def _defined(value: Any) -> Any:

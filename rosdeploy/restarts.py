@@ -12,6 +12,12 @@ releases/<id>/fastdds.xml, a new path each release). So:
   too (releases/<id>/store/...), and `link_store` hard-links them into the project's
   store after the upload; entries no kept release holds are removed there.
 
+The digest of secret content (a `secret: true` file, a secret's value in the hash label) is
+an HMAC with a key the controller derives and never writes (secret_key): an unsalted
+sha256 of a PIN, in a world-readable compose.yml or folder name, gives the PIN back by
+brute force in milliseconds. The key is the same for the same inputs, so an unchanged
+secret keeps its address and its containers.
+
 Rollback needs nothing more: a kept release's compose.yml names its own store paths,
 which exist as long as the release is kept, so compose recreates exactly what differs.
 """
@@ -19,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import hmac
 import json
 from typing import Any, Mapping
 
@@ -34,14 +41,23 @@ _COMMON = ("dds_env", "network_mode", "shm_size", "log_max_size", "log_max_file"
            "rmw_implementation", "dds_file", "dds_source")
 
 
-def content_digest(content: str) -> str:
-    return hashlib.sha256(content.encode("utf-8")).hexdigest()[:HASH_CHARS]
+def content_digest(content: str, key: bytes | None = None) -> str:
+    """sha256 of public content; an HMAC under `key` (secret_key) for secret content, so the
+    digest is no test of a guess of the content."""
+    data = content.encode("utf-8", "surrogatepass")
+    if key is None:
+        return hashlib.sha256(data).hexdigest()[:HASH_CHARS]
+    return hmac.new(key, data, hashlib.sha256).hexdigest()[:HASH_CHARS]
 
 
-def stored(file: RenderedFile, name: str | None = None) -> RenderedFile:
-    """The copy of a rendered file that containers mount: store/<digest>/<name>."""
+def stored(file: RenderedFile, name: str | None = None, key: bytes | None = None) -> RenderedFile:
+    """The copy of a rendered file that containers mount: store/<digest>/<name>; a secret file's
+    digest is keyed (`key` is required for one)."""
+    if file.secret and key is None:
+        raise ValueError(f"{file.name} is secret: its store address needs the secret key")
     base = (name or file.name).rsplit("/", 1)[-1]
-    return dataclasses.replace(file, name=f"{STORE}/{content_digest(file.content)}/{base}")
+    digest = content_digest(file.content, key if file.secret else None)
+    return dataclasses.replace(file, name=f"{STORE}/{digest}/{base}")
 
 
 def mount_source(file: RenderedFile) -> str:
@@ -49,8 +65,9 @@ def mount_source(file: RenderedFile) -> str:
     return f"../../{file.name}"
 
 
-def service_hash(svc: Any, ctx: Mapping[str, Any]) -> str:
-    """Everything that makes this service's container what it is, and nothing else."""
+def service_hash(svc: Any, ctx: Mapping[str, Any], key: bytes) -> str:
+    """Everything that makes this service's container what it is, and nothing else. `key`:
+    secret_key, for the digests of the secret values it reads."""
     # The fields as they are, not dataclasses.asdict: its deep copy was a third of rendering
     # 5,000 robots (issue 18); _json_value turns a nested dataclass into the same JSON.
     fields = {k: v for k, v in _fields(svc).items() if k not in ("labels", "extra_yaml")}
@@ -58,7 +75,7 @@ def service_hash(svc: Any, ctx: Mapping[str, Any]) -> str:
     secrets = dict(ctx.get("secrets") or ())
     data = {"service": fields, "common": {k: ctx.get(k) for k in _COMMON},
             # a changed secret changes the container's environment; only its digest goes in
-            "secrets": {name: content_digest(secrets.get(name, "")) for name in svc.secrets}}
+            "secrets": {name: content_digest(secrets.get(name, ""), key) for name in svc.secrets}}
     return hashlib.sha256(json.dumps(data, sort_keys=True, default=_json_value).encode()).hexdigest()[:HASH_CHARS]
 
 
@@ -77,9 +94,9 @@ def _fields(obj: Any) -> dict[str, Any]:
     return {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
 
 
-def with_hash(svc: Any, ctx: Mapping[str, Any]) -> Any:
+def with_hash(svc: Any, ctx: Mapping[str, Any], key: bytes) -> Any:
     labels = tuple(kv for kv in svc.labels if kv[0] != HASH_LABEL)
-    return dataclasses.replace(svc, labels=labels + ((HASH_LABEL, service_hash(svc, ctx)),))
+    return dataclasses.replace(svc, labels=labels + ((HASH_LABEL, service_hash(svc, ctx, key)),))
 
 
 def hashes(compose: Mapping[str, Any] | None) -> dict[str, str]:

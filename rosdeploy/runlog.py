@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
+from rosdeploy.output import masked_values
 from rosdeploy.results import FleetResult
 
 
@@ -30,6 +31,9 @@ def save(result: FleetResult, masked: Callable[[str], str]) -> Path:
     for host in result.hosts + result.fleet_rollback:
         for service, text in host.logs.items():
             (folder / f"{host.host}.{service}.log").write_text(masked(text) + "\n", encoding="utf-8")
-    (folder / "result.json").write_text(masked(json.dumps(result.to_json(), indent=2, sort_keys=True)) + "\n",
+    # the values masked before serializing: masking the JSON text missed a secret JSON escapes
+    # (non-ASCII, a quote) and could break the record (a secret equal to `null` or a key)
+    (folder / "result.json").write_text(json.dumps(masked_values(result.to_json(), masked), indent=2,
+                                                   sort_keys=True) + "\n",
                                         encoding="utf-8")
     return folder

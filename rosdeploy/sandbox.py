@@ -43,6 +43,7 @@ import collections.abc
 import contextlib
 import itertools
 import importlib
+import math
 import operator
 import os
 import re
@@ -61,6 +62,8 @@ from jinja2.compiler import CodeGenerator, Frame, operators, optimizeconst
 from jinja2.runtime import LoopContext
 from jinja2.sandbox import ImmutableSandboxedEnvironment, SandboxedEscapeFormatter, SandboxedFormatter, SecurityError
 from markupsafe import Markup
+
+from rosdeploy.yamlsrc import not_text
 
 MAX_NESTING = 64                 # levels of a template's syntax tree (see _PlainReads._generate)
 TOO_DEEP = "brackets, parentheses or expressions nest too deeply: split it into smaller values"
@@ -111,9 +114,17 @@ def _bounded_concat(parts: Iterable[str]) -> str:
         return _built(_joined(parts), budget, "this block's output")
     _RENDER.budget = [MAX_WORK, MAX_BUILT]
     try:
-        return _joined(parts)
+        text = _joined(parts)
     finally:
         _RENDER.budget = None
+    why = not_text(text)
+    if why is not None:     # `{{ "\\ud800" }}`: Jinja reads escapes; writing the text would crash
+        raise NotText(f"the rendered text {why}")
+    return text
+
+
+class NotText(SecurityError):
+    """A render whose text no file can hold (yamlsrc.not_text): refused, never written."""
 
 
 def _joined(parts: Iterable[str]) -> str:
@@ -342,6 +353,24 @@ class _BoundedCodeGenerator(CodeGenerator):
             self.write("), ")
         self.write(")), context)")
 
+    def visit_Const(self, node: jinja2.nodes.Const, frame: Frame) -> None:
+        # Jinja writes a float constant as str(): `1e400` (or `1e400 * 0`, folded) became the
+        # name `inf` (`nan`) in the generated Python, a NameError when rendered
+        self._finite(node.as_const(frame.eval_ctx), node.lineno)
+        super().visit_Const(node, frame)
+
+    def _output_child_to_const(self, node: jinja2.nodes.Expr, frame: Frame, finalize: Any) -> str:
+        # `{{ 1e400 }}` alone is written at compile time, as the text "inf": refused as above
+        const = super()._output_child_to_const(node, frame, finalize)   # Impossible: not a constant
+        self._finite(node.as_const(frame.eval_ctx), node.lineno)
+        return const
+
+    def _finite(self, value: Any, lineno: int) -> None:
+        found = _not_finite(value)
+        if found is not None:
+            self.fail(f"a number here is {found}, not a finite number (a literal past 1.8e308, or computed from "
+                      "one): write a finite number", lineno)
+
     @optimizeconst
     def visit_Getitem(self, node: jinja2.nodes.Getitem, frame: Frame) -> None:
         if not isinstance(node.arg, jinja2.nodes.Slice):     # environment.getitem: one item, no copy
@@ -437,6 +466,17 @@ class _BoundedCodeGenerator(CodeGenerator):
         self.write(f" {operators[node.op]} environment.searched(")
         self.visit(node.expr, frame)
         self.write(", context)")
+
+
+def _not_finite(value: Any) -> str | None:
+    """'inf' or 'nan' when `value` (a constant: a number, or a list, tuple or dict of them) holds one."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else str(value).lstrip("-")
+    if isinstance(value, dict):
+        value = [*value.keys(), *value.values()]
+    if isinstance(value, (list, tuple)):
+        return next((found for item in value if (found := _not_finite(item)) is not None), None)
+    return None
 
 
 # Attributes no template reads: `host.secret_values` holds every vault value of the robot as text,

@@ -15,11 +15,11 @@ import base64
 import binascii
 import functools
 import hmac
-import io
 import getpass
 import logging
 import os
 import random
+import re
 import select
 import shlex
 import socket
@@ -33,11 +33,10 @@ from typing import Callable, Iterable, Iterator, Mapping, Protocol, Sequence
 import paramiko
 from fabric import Config, Connection
 
-from rosdeploy import execwait, yamlsrc
-from rosdeploy.vault import is_password_file
+from rosdeploy import execwait
 from rosdeploy.commands import Command
 from rosdeploy.errors import ChannelRefused, CommandFailed, ConnectError, HostKeyError, InputError, Problem
-from rosdeploy.fleet import MAX_KNOWN_HOSTS, MAX_SSH_CONFIG
+from rosdeploy.fleet import MAX_KNOWN_HOSTS, BadSSHConfig, proxy_jump_hops, read_ssh_config
 from rosdeploy.model import Host
 
 
@@ -107,11 +106,28 @@ def ssh_config_paths(options: SSHOptions) -> list[str]:
 def parsed_ssh_config(options: SSHOptions) -> paramiko.SSHConfig:
     """ssh_config parsed once per run, not once per robot; SSHConfig lookups only read it, so
     robot threads share it. The files' mtimes key the cache with the options: the connection
-    keeper lives on, and an edited config must be read again."""
+    keeper lives on, and an edited config (or a file it Includes) must be read again."""
+    return _ssh_config(options)[0]
+
+
+def ssh_config_files(options: SSHOptions) -> list[str]:
+    """Every ssh config file read for these options, Included ones too (the keeper keys on their mtimes)."""
+    try:
+        return list(_ssh_config(options)[1])
+    except (InputError, ConnectError):      # each robot's connection reports it
+        return ssh_config_paths(options)
+
+
+def _ssh_config(options: SSHOptions) -> tuple[paramiko.SSHConfig, tuple[str, ...]]:
     paths = ssh_config_paths(options)
     if options.ssh_config and not os.path.exists(paths[0]):
         raise ConnectError("ssh", f"ssh config {paths[0]} does not exist: fix `ssh.config` in the fleet file")
-    return _parsed_ssh_config(options, tuple((p, mtime_ns(p)) for p in paths))
+    stamps = tuple((p, mtime_ns(p)) for p in paths)
+    config, read = _parsed_ssh_config(options, stamps)
+    if any(mtime_ns(path) != stamp for path, stamp in read):     # an Included file was edited
+        _parsed_ssh_config.cache_clear()
+        config, read = _parsed_ssh_config(options, stamps)
+    return config, tuple(path for path, _ in read)
 
 
 def mtime_ns(path: str) -> int:
@@ -122,39 +138,40 @@ def mtime_ns(path: str) -> int:
 
 
 @functools.lru_cache(maxsize=8)
-def _parsed_ssh_config(options: SSHOptions, stamps: tuple[tuple[str, int], ...]) -> paramiko.SSHConfig:
-    # each read bounded: a fifo, /dev/zero or a binary file must not hang, fill memory or crash the run
+def _parsed_ssh_config(options: SSHOptions, stamps: tuple[tuple[str, int], ...],
+                       ) -> tuple[paramiko.SSHConfig, tuple[tuple[str, int], ...]]:
+    # each read bounded (fleet.read_ssh_config): a fifo, /dev/zero or a binary file must not hang,
+    # fill memory or crash the run; the values fabric would crash on are refused there by file:line
     config = paramiko.SSHConfig()
+    read: list[tuple[str, int]] = []
     for each, _ in stamps:
-        if is_password_file(each):    # its text unlocks every vault: never parsed, never quoted
-            raise InputError([Problem(each, None, "", "a vault password file, not an ssh config: fix `ssh.config` in "
-                                                      "the fleet file")])
         try:
-            text = yamlsrc.read_bytes(each, MAX_SSH_CONFIG, "an OpenSSH client config").decode("utf-8")
-        except UnicodeDecodeError:
-            raise ConnectError("ssh", f"ssh config {each} is not UTF-8 text: fix it") from None
-        except InputError as exc:
-            raise ConnectError("ssh", f"ssh config {each}: {exc.problems[0].message}") from None
-        lines = _Numbered(text)
+            text = read_ssh_config(each)
+        except BadSSHConfig as exc:
+            if exc.unreadable:
+                raise ConnectError("ssh", f"ssh config {exc}") from None
+            # an input error (exit 2), not an unreachable robot: no robot can be reached with this config
+            raise InputError([Problem(exc.file, exc.line, "", exc.message)]) from None
+        read += [(path, mtime_ns(path)) for path in text.files]
+        lines = _Numbered(text.lines)
         try:
             config.parse(lines)
         except (paramiko.ssh_exception.ConfigParseError, ValueError):
             # paramiko's error quotes the line, which may be anything (a secret in a file named by mistake)
-            # an input error (exit 2), not an unreachable robot: no robot can be reached with this config
             why = "not an OpenSSH client config line (the line is not shown): fix it, or `ssh.config` in the fleet file"
-            raise InputError([Problem(each, lines.number, "", why)]) from None
-    return config
+            raise InputError([Problem(*text.origins[max(lines.number - 1, 0)], "", why)]) from None
+    return config, tuple(read)
 
 
 class _Numbered:
-    """A config's lines, counted as paramiko reads them, so an error can name the line by number."""
+    """A config's lines, counted as paramiko reads them, so an error can name the line (and its file)."""
 
-    def __init__(self, text: str) -> None:
-        self._text = text
+    def __init__(self, lines: Sequence[str]) -> None:
+        self._lines = lines
         self.number = 0
 
     def __iter__(self) -> Iterator[str]:
-        for line in io.StringIO(self._text):
+        for line in self._lines:
             self.number += 1
             yield line
 
@@ -166,6 +183,70 @@ def fabric_config(options: SSHOptions) -> Config:
     return Config(overrides=dict(FABRIC_OVERRIDES), ssh_config=parsed_ssh_config(options))
 
 
+class KeyFileError(ConnectError):
+    """A private key file that cannot be one: reported at once, never retried (it would not change)."""
+
+
+MAX_KEY_FILE = 64 << 10     # bytes: an OpenSSH private key is a few KB (RSA 16384 bits: ~12 KB)
+_PUBLIC_KEY = (b"ssh-", b"ecdsa-", b"sk-ssh-", b"sk-ecdsa-")
+
+
+def key_file_problem(path: str) -> str | None:
+    """Why `path` cannot be a private key file, or None (a missing one too: the caller decides).
+    Opened without blocking (a fifo) and checked on the descriptor; at most 64 bytes are read."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0))
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror}): check its permissions"
+    try:
+        info = os.fstat(fd)
+        head = os.read(fd, 64) if stat.S_ISREG(info.st_mode) else b""
+    finally:
+        os.close(fd)
+    if not stat.S_ISREG(info.st_mode):
+        return f"is {_file_kind(info.st_mode)}, not a private key file"
+    if info.st_size > MAX_KEY_FILE:
+        return f"is larger than {MAX_KEY_FILE >> 10} KB: that is no private key"
+    if path.endswith(".pub") or head.lstrip().startswith(_PUBLIC_KEY):
+        return "is a public key: give the private key (the file without .pub)"
+    if info.st_uid == os.getuid() and info.st_mode & 0o077:
+        # as OpenSSH (and so Ansible) refuses it: others on this machine can read the key
+        return (f"is an UNPROTECTED PRIVATE KEY FILE (mode {stat.S_IMODE(info.st_mode):04o}: others can read it); "
+                f"OpenSSH refuses it too: run `chmod 600 {shlex.quote(path)}`")
+    return None
+
+
+def port_given(host: Host) -> bool:
+    """Whether the inventory set the robot's port (ansible_port or ansible_ssh_port, not null), so
+    that it wins over the ssh config's Port; a Host built without vars (the keeper's) by its value."""
+    given = getattr(host, "port_given", None)
+    if given is not None:
+        return bool(given)
+    return any(host.vars.get(var) is not None for var in ("ansible_port", "ansible_ssh_port")) or host.port != 22
+
+
+def _endpoint(host: str, port: int) -> str:
+    """The name paramiko looks a host key up by (SSHClient.connect), as in known_hosts."""
+    return host if port == 22 else f"[{host}]:{port}"
+
+
+def _trust(conn: Connection, files: list[KnownHosts]) -> None:
+    """Make conn's client accept only the keys `files` list for it (never an unknown or @revoked one)."""
+    name = _endpoint(conn.host, conn.port)      # after ssh_config's HostName and Port
+    keys = _distinct(key for known in files for key in known.keys_for(name))
+    policy = _RejectUnknown(files)
+    if len({key.get_name() for key in keys}) == len(keys):
+        for key in keys:
+            conn.client.get_host_keys().add(name, key.get_name(), key)
+    else:
+        # paramiko keeps one key per type and name, so it would call a robot whose second
+        # key of a type is listed "changed"; OpenSSH accepts any listed key: the policy does
+        policy.listed[name] = keys
+    conn.client.set_missing_host_key_policy(policy)
+
+
 class SSHTransport:
     """One SSH connection to one robot, reused for every command of a run."""
 
@@ -173,6 +254,7 @@ class SSHTransport:
         self.host = host
         self.options = options
         self._conn = self._connection(config or fabric_config(options))
+        self._dialling = self._conn       # the connection being opened: the robot's or a jump host's
         # False: a dropped connection is not opened again by the next command (a deploy
         # that lost its robot mid-step must not carry on over a new one)
         self.reconnect = True
@@ -181,27 +263,38 @@ class SSHTransport:
         kwargs: dict = {}
         if self.host.key_file:
             kwargs["key_filename"] = [os.path.expanduser(self.host.key_file)]
-        # 22 is also what a robot without ansible_port has: leave the port to ssh_config's `Port` then
-        conn = Connection(self.host.address, user=self.host.user, port=self.host.port if self.host.port != 22 else None,
-                          config=config,
-                          connect_timeout=int(self.options.connect_timeout) or None, connect_kwargs=kwargs)
+        # an explicit ansible_port, 22 included, wins over the ssh config's Port (Ansible passes -o Port=)
+        conn = self._client(self.host.address, self.host.user, self.host.port if port_given(self.host) else None,
+                            config, kwargs)
+        self._hops = self._jump_hosts(conn, config)
+        if "proxyjump" not in conn.ssh_config and conn.ssh_config.get("proxycommand"):
+            conn.gateway = conn.ssh_config["proxycommand"]      # fabric runs it, as it did
         try:
             files = [_parsed_host_keys(path) for path in known_hosts_for(self.host, self.options)]
         except UnusableKnownHosts as exc:
             raise HostKeyError(self.host.name, f"{exc}: {self._known_hosts_setting(exc.path)}") from exc
-        # the one name paramiko looks up (SSHClient.connect), after ssh_config's HostName and Port
-        name = conn.host if conn.port == 22 else f"[{conn.host}]:{conn.port}"
-        keys = _distinct(key for known in files for key in known.keys_for(name))
-        policy = _RejectUnknown(files)
-        if len({key.get_name() for key in keys}) == len(keys):
-            for key in keys:
-                conn.client.get_host_keys().add(name, key.get_name(), key)
-        else:
-            # paramiko keeps one key per type and name, so it would call a robot whose second
-            # key of a type is listed "changed"; OpenSSH accepts any listed key: the policy does
-            policy.listed[name] = keys
-        conn.client.set_missing_host_key_policy(policy)
+        for each in (*self._hops, conn):     # a jump host is verified exactly as the robot is
+            _trust(each, files)
         return conn
+
+    def _client(self, address: str, user: str | None, port: int | None, config: Config, kwargs: dict) -> Connection:
+        """A fabric Connection without fabric's gateway (see _jump_hosts) nor agent forwarding
+        (rosdeploy opens its channels itself, so ForwardAgent never applied; `ForwardAgent Yes`
+        was a KeyError in fabric). The banner wait is bounded by connect_timeout too: through a
+        jump host, paramiko's own 15 s applied."""
+        timeout = int(self.options.connect_timeout) or None
+        return Connection(address, user=user, port=port, config=config, gateway=False, forward_agent=False,
+                          connect_timeout=timeout, connect_kwargs={**kwargs, "banner_timeout": timeout})
+
+    def _jump_hosts(self, conn: Connection, config: Config) -> list[Connection]:
+        """ProxyJump's hosts, first hop first, built here: fabric's hops kept its AutoAddPolicy (any
+        jump host key was accepted), had no connect timeout, were dropped when a hop had the robot's
+        address and made `ProxyJump none` a host called "none". A hop's own ProxyJump is not followed."""
+        try:
+            hops = proxy_jump_hops(conn.ssh_config.get("proxyjump") or "none")
+        except ValueError as exc:       # checked when the config was read; %h and the like expand later
+            raise ConnectError(self.host.name, f"ssh config ProxyJump: {exc}") from None
+        return [self._client(host, user, port, config.clone(), {}) for user, host, port in hops]
 
     @property
     def endpoint(self) -> str:
@@ -214,26 +307,58 @@ class SSHTransport:
         return self._conn.transport
 
     def open(self) -> "SSHTransport":
-        self._check_key_file()
+        self._check_key_files()
+        self._dialling = self._conn
         try:
+            sock = self._open_hops()
+            self._dialling = self._conn
+            self._conn.connect_kwargs.pop("sock", None)
+            if sock is not None:
+                self._conn.connect_kwargs["sock"] = sock
             self._conn.open()
             _no_delay(self._conn.client.get_transport())
             _keepalive(self._conn.client.get_transport())
         except paramiko.BadHostKeyException as exc:
             raise HostKeyError(self.host.name, self._changed_key_message(exc)) from exc
         except RevokedHostKey as exc:
-            raise HostKeyError(self.host.name, f"host key of {self.endpoint} is REVOKED: {exc}; rosdeploy "
+            raise HostKeyError(self.host.name, f"host key of {self._where()} is REVOKED: {exc}; rosdeploy "
                                                "refuses it. Replace the robot's host key") from exc
         except paramiko.SSHException as exc:
             if "not found in known_hosts" in str(exc):
-                raise HostKeyError(self.host.name, self._unknown_key_message(getattr(exc, "key", None))) from exc
-            raise ConnectError(self.host.name, f"SSH to {self.endpoint} failed: {self._why(exc)}") from exc
+                raise HostKeyError(self.host.name, self._unknown_key_message(getattr(exc, "key", None),
+                                                                             self._dialling)) from exc
+            raise ConnectError(self.host.name, f"SSH to {self._where()} failed: {self._why(exc)}") from exc
         except (socket.timeout, TimeoutError) as exc:
-            raise ConnectError(self.host.name, f"unreachable: no answer from {self.endpoint} within "
+            raise ConnectError(self.host.name, f"unreachable: no answer from {self._where()} within "
                                                f"{self.options.connect_timeout:g}s (ssh.connect_timeout)") from exc
         except OSError as exc:
-            raise ConnectError(self.host.name, f"unreachable: {self.endpoint}: {exc.strerror or exc}") from exc
+            raise ConnectError(self.host.name, f"unreachable: {self._where()}: {exc.strerror or exc}") from exc
         return self
+
+    def _open_hops(self) -> paramiko.Channel | None:
+        """Each ProxyJump host over the one before it, each verified as the robot is (_trust);
+        the channel from the last one to the robot, or None without jump hosts."""
+        sock = None
+        for hop, after in zip(self._hops, [*self._hops[1:], self._conn][:len(self._hops)], strict=True):
+            hop.close()                  # a reconnect builds the chain afresh
+            hop.connect_kwargs.pop("sock", None)
+            if sock is not None:
+                hop.connect_kwargs["sock"] = sock
+            self._dialling = hop
+            hop.open()
+            try:
+                sock = hop.transport.open_channel("direct-tcpip", (after.host, int(after.port)), ("", 0),
+                                                  timeout=self.options.connect_timeout)
+            except paramiko.ChannelException as exc:
+                raise ConnectError(self.host.name, f"unreachable: {self._where()} could not connect "
+                                                   f"to {_endpoint(after.host, after.port)}: {exc.text}") from exc
+        return sock
+
+    def _where(self) -> str:
+        """The host being dialled, for a message: the robot, or which jump host."""
+        conn = self._dialling
+        where = _endpoint(conn.host, conn.port)
+        return where if conn is self._conn else f"jump host {where} (ProxyJump, for {self.endpoint})"
 
     def _why(self, exc: paramiko.SSHException) -> str:
         """paramiko's words, and what to check: its own ("No existing session") say neither."""
@@ -247,15 +372,38 @@ class SSHTransport:
                     "answers on that port (or the ssh config's ProxyCommand/ProxyJump)")
         return str(exc)
 
-    def _check_key_file(self) -> None:
-        """A missing key file would surface as paramiko's bare "No such file"; name the file and its var."""
-        key = self.host.key_file and os.path.expanduser(self.host.key_file)
-        if key and not os.access(key, os.R_OK):
-            why = "does not exist" if not os.path.exists(key) else "cannot be read (check its permissions)"
-            raise ConnectError(self.host.name, f"SSH key file {key} {why}; it is set by "
-                               f"{self.host.key_file_var or 'ansible_ssh_private_key_file'}: fix the path (a "
-                               "relative one is taken from the working directory, as in Ansible; write "
-                               "'{{ inventory_dir }}/...' for one beside the inventory)")
+    def _check_key_files(self) -> None:
+        """Key files are checked before paramiko reads them, whole and unbounded: a fifo hung the
+        run past connect_timeout, /dev/zero filled memory, a directory or a .pub file was "unreachable"
+        or a bare paramiko error naming neither the file nor where it was set. OpenSSH skips a
+        missing IdentityFile of the ssh config, and so do we; a missing ansible_ssh_private_key_file
+        is an error (its var named)."""
+        if self.host.key_file:
+            key = os.path.expanduser(self.host.key_file)
+            why = key_file_problem(key) or (None if os.path.lexists(key) else "does not exist")
+            if why:
+                raise KeyFileError(self.host.name, f"SSH key file {key} {why}; it is set by "
+                                   f"{self.host.key_file_var or 'ansible_ssh_private_key_file'}: fix the path "
+                                   "(a relative one is taken from the working directory, as in Ansible; write "
+                                   "'{{ inventory_dir }}/...' for one beside the inventory)")
+        for conn in (*self._hops, self._conn):
+            given = self.host.key_file if conn is self._conn else None
+            self._check_identity_files(conn, [os.path.expanduser(given)] if given else [])
+
+    def _check_identity_files(self, conn: Connection, explicit: list[str]) -> None:
+        """The ssh config's IdentityFiles of one connection: a missing one is dropped (paramiko's
+        FileNotFoundError was "unreachable"), one that cannot be a key is an error naming it."""
+        configured = [k for k in conn.connect_kwargs.get("key_filename", []) if k not in explicit]
+        for key in configured:
+            why = key_file_problem(os.path.expanduser(key))
+            if why:
+                raise KeyFileError(self.host.name, f"SSH key file {key} {why}; it is an IdentityFile of the ssh "
+                                   f"config ({', '.join(ssh_config_files(self.options))}) for "
+                                   f"{_endpoint(conn.host, conn.port)}: fix or remove that line")
+        kept = [*explicit, *(k for k in configured if os.path.lexists(os.path.expanduser(k)))]
+        conn.connect_kwargs.pop("key_filename", None)
+        if kept:
+            conn.connect_kwargs["key_filename"] = kept
 
     def _known_hosts_setting(self, path: str) -> str:
         """What to fix for a known_hosts file that cannot be used, by where it was chosen."""
@@ -272,18 +420,22 @@ class SSHTransport:
 
     def _changed_key_message(self, exc: paramiko.BadHostKeyException) -> str:
         paths = known_hosts_for(self.host, self.options)
-        return (f"HOST KEY CHANGED for {self.endpoint}: it offered {exc.key.get_name()} "
+        return (f"HOST KEY CHANGED for {self._where()}: it offered {exc.key.get_name()} "
                 f"{exc.key.fingerprint} but {', '.join(paths)} expects {exc.expected_key.fingerprint}. "
                 f"This can be an attack; if the robot was reinstalled, verify the new key and run "
-                f"`ssh-keygen -f {shlex.quote(paths[0])} -R '{self.endpoint}'` then add the new key.")
+                f"`ssh-keygen -f {shlex.quote(paths[0])} -R '{_endpoint(self._dialling.host, self._dialling.port)}'` "
+                "then add the new key.")
 
-    def _unknown_key_message(self, offered: paramiko.PKey | None) -> str:
+    def _unknown_key_message(self, offered: paramiko.PKey | None, conn: Connection | None = None) -> str:
+        """`conn`: the robot's connection (the default) or the jump host whose key is unknown."""
+        conn = conn or self._conn
         paths = known_hosts_for(self.host, self.options)
         skipped = " ".join(w for path in paths for w in known_hosts_warnings(path))
         key = f" (it offered {offered.get_name()} {offered.fingerprint})" if offered is not None else ""
-        return (f"host key of {self.endpoint}{key} is not in {', '.join(paths)}; rosdeploy never trusts an "
-                f"unknown key. Verify the robot's fingerprint, then add it (e.g. `ssh-keyscan -p {self._conn.port} "
-                f"{self._conn.host} >> {shlex.quote(paths[0])}`) or point `rosdeploy_known_hosts` at a file that "
+        what = _endpoint(conn.host, conn.port) if conn is self._conn else self._where()
+        return (f"host key of {what}{key} is not in {', '.join(paths)}; rosdeploy never trusts an "
+                f"unknown key. Verify the robot's fingerprint, then add it (e.g. `ssh-keyscan -p {conn.port} "
+                f"{conn.host} >> {shlex.quote(paths[0])}`) or point `rosdeploy_known_hosts` at a file that "
                 "has it." + (f" Note: {skipped}" if skipped else ""))
 
     def run(self, command: Command) -> Result:
@@ -327,6 +479,8 @@ class SSHTransport:
 
     def close(self) -> None:
         self._conn.close()
+        for hop in reversed(self._hops):     # fabric never closed its gateway hops
+            hop.close()
 
 
 def succeeded(host: Host, result: Result, what: str) -> Result:
@@ -380,19 +534,46 @@ class KnownHosts:
     offers one is refused by name rather than reported unknown.
     """
 
-    entries: tuple[tuple[str, paramiko.PKey], ...]    # (host name, plain or `|1|` hashed; key), file order
-    plain: Mapping[str, tuple[int, ...]]              # a plain name -> its entries
+    entries: tuple[tuple[str, paramiko.PKey], ...]    # (host names field: patterns, or one `|1|` hash; key)
+    plain: Mapping[str, tuple[int, ...]]              # a plain name (lower case) -> its entries
     hashed: tuple[int, ...]                           # the entries of hashed names
+    patterned: tuple[int, ...]                        # entries with a `*`, `?` or `!` pattern
     revoked: frozenset[tuple[str, bytes]]             # (key type, key blob)
-    warnings: tuple[str, ...]
+    notes: tuple[tuple[int | None, str], ...]         # (line, what was skipped there and why)
+    path: str = ""
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        return tuple(f"{self.path}:{line}: {note}" if line else f"{self.path}: {note}" for line, note in self.notes)
 
     def keys_for(self, name: str) -> list[paramiko.PKey]:
         """Every key listed for `name`, in file order. Looked up for the one name, never through a
         HostKeys of the whole file: its add() scans every entry, so 20,000 lines took over 30 s
-        for every robot's connection."""
+        for every robot's connection. Names match without regard to case, as in OpenSSH."""
+        name = name.lower()
         found = [i for i in self.hashed if hmac.compare_digest(paramiko.HostKeys.hash_host(name, self.entries[i][0]),
                                                                self.entries[i][0])]
-        return [self.entries[i][1] for i in sorted([*self.plain.get(name, ()), *found])]
+        found += [i for i in self.patterned if _host_matches(name, self.entries[i][0])]
+        return [self.entries[i][1] for i in sorted({*self.plain.get(name, ()), *found})]
+
+
+def _host_matches(name: str, field: str) -> bool:
+    """OpenSSH's match_hostname: `*` and `?` wildcards; a negated pattern that matches excludes
+    the line whatever else matches (`[a]:22,![a]:22` is no line for a)."""
+    positive = False
+    for pattern in field.lower().split(","):
+        negated = pattern.startswith("!")
+        if _wildcard(pattern[negated:]).fullmatch(name):
+            if negated:
+                return False
+            positive = True
+    return positive
+
+
+@functools.lru_cache(maxsize=4096)
+def _wildcard(pattern: str) -> re.Pattern[str]:
+    # not fnmatch: `[` is a character class there, and every `[host]:port` would be one
+    return re.compile("".join(".*" if c == "*" else "." if c == "?" else re.escape(c) for c in pattern), re.DOTALL)
 
 
 def _distinct(keys: Iterable[paramiko.PKey]) -> list[paramiko.PKey]:
@@ -435,7 +616,9 @@ class UnusableKnownHosts(Exception):
 
 @functools.lru_cache(maxsize=32)
 def _host_keys_file(path: str, mtime_ns: int) -> KnownHosts:
-    return parse_known_hosts(_read_known_hosts(path).splitlines(), path)
+    # lines end at \n only, as OpenSSH reads them: str.splitlines() also broke at \x0c, \x85 or
+    # \u2028, and the rest of a commented-out line became a trusted key
+    return parse_known_hosts([line.removesuffix("\r") for line in _read_known_hosts(path).split("\n")], path)
 
 
 def _read_known_hosts(path: str) -> str:
@@ -468,34 +651,36 @@ def _file_kind(mode: int) -> str:
 
 def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
     """Plain entries (hashed or not), minus @revoked keys; the rest skipped with a warning."""
-    revoked, authorities, unreadable = set(), 0, []
-    entries: list[paramiko.hostkeys.HostKeyEntry] = []
+    revoked, authorities, unreadable, bad_revoked = set(), [], [], []
+    entries: list[tuple[int, paramiko.hostkeys.HostKeyEntry]] = []
     for number, line in enumerate(lines, 1):
-        line = line.strip()
+        line = line.strip(" \t")        # OpenSSH's blanks only: a \x0c or \x85 is part of the line
         if not line or line.startswith("#"):
             continue
-        marker = line.split(None, 1)[0]
-        if marker == "@cert-authority":
-            authorities += 1
-            continue
-        blob = _key_blob(line.split()[2:4]) if marker == "@revoked" else None
-        entry = None if marker == "@revoked" else _entry(line)
-        if blob is None and entry is None:
-            unreadable.append(number)
-        elif blob is not None:
-            revoked.add(blob)
-        elif entry is not None:
-            entries.append(entry)
+        fields = [f for f in re.split("[ \t]+", line) if f]
+        if fields[0] == "@cert-authority":
+            authorities.append(number)
+        elif fields[0] == "@revoked":
+            blob = _key_blob(fields[2:4]) if len(fields) >= 4 else None
+            (bad_revoked.append(number) if blob is None else revoked.add(blob))
+        elif (entry := None if fields[0].startswith("@") else _entry(line)) is None:
+            unreadable.append(number)       # an unknown marker (`@REVOKED` too, as in OpenSSH) or not a key
+        else:
+            entries.append((number, entry))
     # a revoked key is never trusted, whatever else the file says
-    kept = [(name, e.key) for e in entries if (e.key.get_name(), e.key.asbytes()) not in revoked
-            for name in e.hostnames]
+    kept = [(",".join(e.hostnames), e.key) for _, e in entries if (e.key.get_name(), e.key.asbytes()) not in revoked]
     plain: dict[str, list[int]] = {}
-    for i, (name, _) in enumerate(kept):
-        if not name.startswith("|1|"):
-            plain.setdefault(name, []).append(i)
-    return KnownHosts(tuple(kept), {name: tuple(found) for name, found in plain.items()},
-                      tuple(i for i, (name, _) in enumerate(kept) if name.startswith("|1|")),
-                      frozenset(revoked), _warnings(path, authorities, unreadable))
+    hashed, patterned = [], []
+    for i, (field, _) in enumerate(kept):
+        if field.startswith("|1|"):
+            hashed.append(i)
+        elif any(c in field for c in "*?!"):
+            patterned.append(i)
+        else:
+            for name in field.lower().split(","):
+                plain.setdefault(name, []).append(i)
+    return KnownHosts(tuple(kept), {name: tuple(found) for name, found in plain.items()}, tuple(hashed),
+                      tuple(patterned), frozenset(revoked), _notes(authorities, unreadable, bad_revoked), path)
 
 
 def _entry(line: str) -> paramiko.hostkeys.HostKeyEntry | None:
@@ -505,7 +690,10 @@ def _entry(line: str) -> paramiko.hostkeys.HostKeyEntry | None:
         # A line that is not a key is skipped, as OpenSSH does; _warnings names it by line number only,
         # never by its text (it may be any bytes).
         return None
-    if entry is None or entry.key is None or not all(map(_readable_name, entry.hostnames)):
+    if entry is None or entry.key is None:
+        return None
+    hashed = [name for name in entry.hostnames if name.startswith("|")]
+    if hashed and (len(entry.hostnames) != 1 or not _readable_name(hashed[0])):   # OpenSSH: one hash per line
         return None
     return entry
 
@@ -514,7 +702,7 @@ def _readable_name(name: str) -> bool:
     """A hashed name (`|1|salt|hash`) whose salt and hash are base64: paramiko decodes the salt
     only on lookup, where a bad one raised out of every connection (an internal error)."""
     if not name.startswith("|1|"):
-        return True
+        return False
     parts = name[3:].split("|")
     try:
         return len(parts) == 2 and all(base64.b64decode(part, validate=True) for part in parts)
@@ -528,17 +716,24 @@ def _key_blob(fields: list[str]) -> tuple[str, bytes] | None:
     return (entry.key.get_name(), entry.key.asbytes()) if entry else None
 
 
-def _warnings(path: str, authorities: int, unreadable: list[int]) -> tuple[str, ...]:
+def _notes(authorities: list[int], unreadable: list[int], bad_revoked: list[int]) -> tuple[tuple[int, str], ...]:
     out = []
     if authorities:
-        out.append(f"{path}: {authorities} @cert-authority line(s) skipped: rosdeploy cannot verify SSH host "
-                   "certificates (paramiko does not); list the robots' plain host keys in known_hosts.")
+        out.append((authorities[0], f"{len(authorities)} @cert-authority line(s) skipped: rosdeploy cannot verify SSH "
+                                    "host certificates (paramiko does not); list the robots' plain host keys in "
+                                    "known_hosts."))
+    if bad_revoked:
+        out.append((bad_revoked[0], f"@revoked line(s) {_numbers(bad_revoked)} cannot be read: the key they mean to "
+                                    "revoke is NOT revoked; write `@revoked HOSTS TYPE BASE64`."))
     if unreadable:
-        lines = ", ".join(map(str, unreadable[:10]))
-        more = f" and {len(unreadable) - 10} more" if len(unreadable) > 10 else ""
-        out.append(f"{path}:{unreadable[0]}: line(s) {lines}{more} skipped: not a host key rosdeploy can read "
-                   "(OpenSSH skips them too); fix or remove them.")
+        out.append((unreadable[0], f"line(s) {_numbers(unreadable)} skipped: not a host key rosdeploy can read "
+                                   "(OpenSSH skips them too); fix or remove them."))
     return tuple(out)
+
+
+def _numbers(lines: list[int]) -> str:
+    more = f" and {len(lines) - 10} more" if len(lines) > 10 else ""
+    return ", ".join(map(str, lines[:10])) + more
 
 
 def known_hosts_warnings(path: str) -> tuple[str, ...]:
@@ -549,12 +744,30 @@ def known_hosts_warnings(path: str) -> tuple[str, ...]:
         return (f"{exc}.",)
 
 
+def known_hosts_problems(hosts: Iterable[Host], options: SSHOptions) -> list[Problem]:
+    """The robots' known_hosts files' skipped lines as warnings (an unusable file as an error),
+    each file once: for validate, check and status to show whether or not a robot's key is found."""
+    found: list[Problem] = []
+    for path in dict.fromkeys(p for host in hosts for p in known_hosts_for(host, options)):
+        try:
+            notes = _parsed_host_keys(path).notes
+        except UnusableKnownHosts as exc:
+            found.append(Problem(path, None, "", f"{exc}".removeprefix(f"known_hosts file {path} ")))
+            continue
+        found += [Problem(path, line, "", note, severity="warning") for line, note in notes]
+    return found
+
+
 def _parsed_host_keys(path: str) -> KnownHosts:
-    """A known_hosts file parsed once per run, not once per robot (that grows with fleet size squared)."""
+    """A known_hosts file parsed once per run, not once per robot (that grows with fleet size squared).
+    A missing file lists no key (each robot's error says so); one that cannot be read (a symlink
+    loop, no permission) is refused, as a directory is: "not in known_hosts" would send the user astray."""
     try:
         return _host_keys_file(path, os.stat(path).st_mtime_ns)
-    except OSError:
-        return KnownHosts((), {}, (), frozenset(), ())
+    except (FileNotFoundError, NotADirectoryError):
+        return KnownHosts((), {}, (), (), frozenset(), (), path)
+    except OSError as exc:
+        raise UnusableKnownHosts(path, f"cannot be read: {exc.strerror or exc}") from None
 
 
 def _answers(transport: paramiko.Transport) -> bool:
@@ -658,7 +871,8 @@ def connect(host: Host, options: SSHOptions, config: Config | None = None) -> SS
         except ConnectError as exc:
             refused_login = (isinstance(exc.__cause__, paramiko.AuthenticationException)
                              or "No authentication methods" in str(exc.__cause__))
-            final = (attempt == CONNECT_TRIES or isinstance(exc, HostKeyError) or deadline - time.monotonic() < 1.5
+            final = (attempt == CONNECT_TRIES or isinstance(exc, (HostKeyError, KeyFileError))
+                     or deadline - time.monotonic() < 1.5
                      or refused_login)
             if final:
                 tries = f" ({attempt} tries within {budget:g}s)" if attempt > 1 else ""

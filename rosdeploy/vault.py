@@ -357,6 +357,12 @@ class Vault:
         read.append(self._env.get(ENV_PASSWORD, "").rstrip("\r\n").encode())
         return tuple(p.decode("utf-8", "replace") for p in read if p)
 
+    def read_passwords(self) -> tuple[bytes, ...]:
+        """The passwords actually read, sorted: secret material for keys that must be stable from
+        run to run (render's content addresses of secret files), whatever source gave them."""
+        with self._lock:
+            return tuple(sorted(password for password, _ in self._passwords.values()))
+
     @property
     def labels(self) -> tuple[str, ...]:
         """The labels of the vault ids, the first one encrypts; ("default",) without ids."""

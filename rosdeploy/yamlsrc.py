@@ -40,6 +40,17 @@ MAX_INT_BITS = 14_000      # about 4,200 decimal digits
 
 _COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
 
+# Code points no file rosdeploy writes may hold, wherever a value comes from (a YAML escape, an INI
+# literal, a Jinja string escape, a script's JSON): a lone surrogate is half of a UTF-16 pair, not a
+# character, so UTF-8 cannot encode it (writing it crashed); the noncharacters are outside YAML's
+# printable set (Compose refuses the compose.yml) and XML's.
+_NOT_TEXT = re.compile("[\ud800-\udfff\ufdd0-\ufdef\ufffe\uffff"
+                       + "".join(chr(plane << 16 | 0xfffe) + chr(plane << 16 | 0xffff) for plane in range(1, 17))
+                       + "]")
+# What json.dumps writes for a character past U+FFFF: an escaped surrogate pair, which JSON (and
+# Ansible, reading .json with a JSON parser) joins into one character, and libyaml refuses.
+_JSON_PAIR = re.compile(r"(?<!\\)((?:\\\\)*)\\u([dD][89abAB][0-9a-fA-F]{2})\\u([dD][c-fC-F][0-9a-fA-F]{2})")
+
 
 class Encrypted(str):
     """A `!vault`-tagged scalar (Ansible's encrypt_string): still ciphertext.
@@ -51,6 +62,10 @@ class Encrypted(str):
 
 class _Constructor(yaml.constructor.SafeConstructor):
     """Builds scalars (and resolves `<<` merges); refusing duplicate keys is _build_mapping's job."""
+
+    # Whether the text holds a `\u`/`\U` escape: only such an escape builds a string not_text
+    # refuses (libyaml refuses the characters written raw), so only then is each string searched.
+    escapes = True
 
 
 class Unsafe(str):
@@ -124,11 +139,14 @@ def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | 
     path = str(path)
     if text is None:
         text = read_text(path)
+    if path.endswith(".json") and "\\u" in text:
+        text = _joined_pairs(text)
     try:
         _check_depth(text)
         node = yaml.compose(text, Loader=_Composer)
     except yaml.YAMLError as exc:
-        raise InputError([Problem(path, _error_line(exc, text), "", f"invalid YAML: {_syntax_text(exc, text)}")]) \
+        kind = "JSON" if path.endswith(".json") else "YAML"   # read as YAML, which JSON is
+        raise InputError([Problem(path, _error_line(exc, text), "", f"invalid {kind}: {_syntax_text(exc, text)}")]) \
             from exc
     except RecursionError as exc:   # the bound above should make this unreachable; never a crash
         raise InputError([Problem(path, None, "", "invalid YAML: nested too deeply")]) from exc
@@ -136,7 +154,9 @@ def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | 
         return Doc(path, None, {})
     _check_expansion(node, path, text)
     lines: dict[KeyPath, int] = {}
-    return Doc(path, _build(node, (), lines, path, _Constructor(), duplicates), lines)
+    constructor = _Constructor()
+    constructor.escapes = "\\u" in text or "\\U" in text
+    return Doc(path, _build(node, (), lines, path, constructor, duplicates), lines)
 
 
 def load_data(text: str, path: str = "<text>") -> Any:
@@ -179,14 +199,63 @@ def _size(limit: int) -> str:
 
 def read_text(path: str) -> str:
     """A file's text as UTF-8; an unreadable file or a stray byte is a file:line problem (never its content)."""
-    data = read_bytes(path)
+    return decoded(path, read_bytes(path))
+
+
+def decoded(path: str, data: bytes) -> str:
+    """`data` (a file's bytes, or a vault file's plaintext) as UTF-8 text; a stray byte is a
+    file:line problem naming the byte, never the text around it."""
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = data[:exc.start].count(b"\n") + 1
         column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
-        raise InputError([Problem(path, line, "", f"byte 0x{data[exc.start]:02x} at column {column} is not UTF-8: "
-                                                  "save the file as UTF-8")]) from None
+        utf16 = " (the file looks like UTF-16)" if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in data[:2] else ""
+        raise InputError([Problem(path, line, "", f"byte 0x{data[exc.start]:02x} at column {column} is not UTF-8"
+                                                  f"{utf16}: save the file as UTF-8")]) from None
+
+
+def not_text(value: Any) -> str | None:
+    """Why `value` (a string, or a list or mapping holding strings, keys included) cannot be written
+    into a file rosdeploy writes, or None: a lone surrogate or a noncharacter (see _NOT_TEXT).
+    The reason names the code point, never the value (it may be a secret)."""
+    if isinstance(value, str):      # most calls
+        found = _search_not_text(value)
+        return None if found is None else _not_text_reason(found[0])
+    stack, seen = [value], set()
+    while stack:
+        item = stack.pop()
+        if isinstance(item, str):
+            found = _search_not_text(item)
+            if found is not None:
+                return _not_text_reason(found.group())
+        elif isinstance(item, (list, tuple, dict)) and id(item) not in seen:
+            seen.add(id(item))
+            stack.extend(item.items() if isinstance(item, dict) else item)
+    return None
+
+
+def _search_not_text(text: str) -> re.Match[str] | None:
+    # isascii() first: 60 ns, where the search (its class holds astral characters) takes 2 µs
+    return None if text.isascii() else _NOT_TEXT.search(text)
+
+
+def _not_text_reason(char: str) -> str:
+    code = f"U+{ord(char):04X}"
+    if 0xD800 <= ord(char) <= 0xDFFF:
+        return (f"holds a lone surrogate ({code}, half of a UTF-16 pair): not a character, so no file can hold "
+                "it; write the character itself (a pair such as \\ud83d\\ude00 in JSON is fine)")
+    return (f"holds the noncharacter {code}, which YAML files (compose.yml) and XML may not hold: "
+            "remove it")
+
+
+def _joined_pairs(text: str) -> str:
+    """A JSON text with each escaped surrogate pair written as the one character it stands for (on
+    the same line, so lines stay right). Only for .json: in YAML `'\\ud83d'` is four letters."""
+    def joined(found: re.Match[str]) -> str:
+        high, low = int(found[2], 16), int(found[3], 16)
+        return found[1] + chr(0x10000 + ((high - 0xD800) << 10) + (low - 0xDC00))
+    return _JSON_PAIR.sub(joined, text)
 
 
 def _error_line(exc: yaml.YAMLError, text: str) -> int | None:
@@ -352,6 +421,8 @@ def _children(node: yaml.Node) -> list[yaml.Node]:
 def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: str, c: _Constructor,
            duplicates: list[Problem] | None = None) -> Any:
     lines.setdefault(keypath, node.start_mark.line + 1)
+    if isinstance(node, yaml.CollectionNode) and node.tag in _TAGGED_COLLECTIONS:
+        return _tagged_collection(node, keypath, lines, path, c, duplicates)
     if not isinstance(node, yaml.ScalarNode) and node.tag not in _COLLECTION_TAGS:
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
                                   f"unsupported YAML tag {shown(node.tag)}: write a plain list or mapping")])
@@ -360,6 +431,33 @@ def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: s
     if isinstance(node, yaml.SequenceNode):
         return [_build(item, keypath + (i,), lines, path, c, duplicates) for i, item in enumerate(node.value)]
     return _scalar_value(node, keypath, path, c)
+
+
+_SET_TAG = "tag:yaml.org,2002:set"
+_TAGGED_COLLECTIONS = ("!unsafe", _SET_TAG)
+
+
+def _tagged_collection(node: yaml.CollectionNode, keypath: KeyPath, lines: dict[KeyPath, int], path: str,
+                       c: _Constructor, duplicates: list[Problem] | None) -> Any:
+    """`!unsafe` on a list or mapping: every string in it is Unsafe (Ansible templates none of them);
+    `!!set {a, b}`: the list of its members, as Ansible writes a set. A copy of the node, untagged,
+    is built: the node may be reached again through an alias."""
+    tag = _COLLECTION_TAGS[0] if isinstance(node, yaml.MappingNode) else _COLLECTION_TAGS[1]
+    plain = type(node)(tag, node.value, node.start_mark, node.end_mark, node.flow_style)
+    value = _build(plain, keypath, lines, path, c, duplicates)
+    if node.tag == _SET_TAG:
+        return list(value) if isinstance(value, dict) else value
+    return _unsafe(value)
+
+
+def _unsafe(value: Any) -> Any:
+    if isinstance(value, str):
+        return Unsafe(value)
+    if isinstance(value, dict):
+        return {key: _unsafe(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_unsafe(item) for item in value]
+    return value
 
 
 def _scalar_value(node: yaml.Node, keypath: KeyPath, path: str, c: _Constructor) -> Any:
@@ -376,31 +474,47 @@ def _scalar_value(node: yaml.Node, keypath: KeyPath, path: str, c: _Constructor)
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
                                   "a number of over 4,000 digits: no setting takes one; write a smaller "
                                   "number, or quote it for text")])
+    if isinstance(value, str) and c.escapes and (found := _search_not_text(value)):   # a `"\ufffe"` escape
+        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath), _not_text_reason(found[0]))])
+    if isinstance(value, bytes):   # written out it was Python's b'...' (Ansible cannot print it either)
+        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
+                                  "a !!binary value: rosdeploy reads text only; write the text itself (or keep "
+                                  "binary data in a `files:` source)")])
     return value
 
 
 def _build_mapping(node: yaml.MappingNode, keypath: KeyPath, lines: dict[KeyPath, int], path: str,
                    c: _Constructor, duplicates: list[Problem] | None) -> dict:
+    explicit = {id(key_node) for key_node, _ in node.value}
     try:
         c.flatten_mapping(node)  # resolves `<<: *anchor` merges
     except yaml.YAMLError as exc:
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
                                   f"invalid merge: {_error_text(exc)}")]) from exc
     out: dict[Any, Any] = {}
+    written: set[Any] = set()     # the keys written in this mapping, not merged into it by `<<`
     for key_node, value_node in node.value:
         if not isinstance(key_node, yaml.ScalarNode):
             raise InputError([Problem(path, key_node.start_mark.line + 1, dotted(keypath),
                                       "a mapping key must be a plain value, not a list or mapping")])
         key = _scalar_value(key_node, keypath, path, c)
         child = keypath + (key,)
-        if key in out:
-            then = "keep one" if duplicates is None else "the last one is used, as in Ansible; keep one"
-            duplicate = Problem(path, key_node.start_mark.line + 1, dotted(child),
-                                f"duplicate key: it is defined twice in the same mapping; {then}",
-                                severity="error" if duplicates is None else "warning")
-            if duplicates is None:
-                raise InputError([duplicate])
-            duplicates.append(duplicate)
+        if id(key_node) in explicit:
+            # a key over one merged by `<<` overrides it: what `<<` means (merged pairs come first)
+            if key in written:
+                _duplicate(path, key_node, child, duplicates)
+            written.add(key)
         lines[child] = key_node.start_mark.line + 1
         out[key] = _build(value_node, child, lines, path, c, duplicates)
     return out
+
+
+def _duplicate(path: str, key_node: yaml.Node, child: KeyPath, duplicates: list[Problem] | None) -> None:
+    """A key written twice in one mapping: an error, or (inventories) a warning as in Ansible."""
+    then = "keep one" if duplicates is None else "the last one is used, as in Ansible; keep one"
+    duplicate = Problem(path, key_node.start_mark.line + 1, dotted(child),
+                        f"duplicate key: it is defined twice in the same mapping; {then}",
+                        severity="error" if duplicates is None else "warning")
+    if duplicates is None:
+        raise InputError([duplicate])
+    duplicates.append(duplicate)

@@ -19,8 +19,8 @@ from typing import Any, Iterator, Sequence, TextIO
 
 from rosdeploy import __version__
 from rosdeploy.cli.common import EXIT_CODES, Parser, UsageError, add_command
-from rosdeploy.errors import (EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, InputError, Problem,
-                              RosdeployError, shown)
+from rosdeploy.errors import (EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, InputError,
+                              Problem, RosdeployError, shown)
 from rosdeploy.output import Output
 
 
@@ -108,8 +108,16 @@ def _early_output(argv: Sequence[str]) -> Output:
 
 
 def _finish(out: Output, code: int) -> int:
+    if code != EXIT_OK:     # a command that failed by its exit code, not by raising: the same `error` member
+        out.amend({"error": {"kind": _KINDS.get(code, "error"), "message": EXIT_CODES.get(code, f"exit {code}"),
+                             "problems": []}}, replace=False)
     out.finish(code)
     return code
+
+
+# The `error.kind` of an exit code (README, --json), for a document whose command did not say it
+_KINDS = {EXIT_INTERNAL: "internal", EXIT_INPUT: "input", EXIT_DECLINED: "declined",
+          EXIT_INTERRUPTED: "interrupted"}
 
 
 class Stopped(KeyboardInterrupt):

@@ -65,7 +65,7 @@ def cmd_validate(args: argparse.Namespace, out: Output) -> int:
     if out.as_json:
         out.document({"ok": not errors, "fleet": args.fleet, "project": project.spec.project,
                       "version": project.spec.version, "robots": [h.name for h in hosts],
-                      "problems": [problem_json(p) for p in problems]})
+                      "problems": [problem_json(p) for p in problems], **failed_json(errors)})
     else:
         _print_problems(out, problems)
     if errors:
@@ -182,7 +182,8 @@ def cmd_check(args: argparse.Namespace, out: Output) -> int:
     errors = sum(p.severity == "error" for p in problems)
     if out.as_json:
         out.document({"ok": not errors, "fleet": args.fleet, "robots": [h.name for h in hosts],
-                      "findings": [problem_json(p) for p in problems]})
+                      "findings": [problem_json(p) for p in problems],
+                      **failed_json([p for p in problems if p.severity == "error"])})
         return EXIT_INPUT if errors else EXIT_OK
     colors = {"error": "red", "warning": "yellow", "info": "dim"}
     for p in problems:   # the findings are this command's output: stdout, so `check > report.txt` works
@@ -192,6 +193,16 @@ def cmd_check(args: argparse.Namespace, out: Output) -> int:
     tally = ", ".join(f"{n} {s}(s)" for s, n in counts.items() if n) or "no findings"
     out.line(f"{'FAIL' if errors else 'OK'} {args.fleet}: {len(hosts)} robot(s), {tally}")
     return EXIT_INPUT if errors else EXIT_OK
+
+
+def failed_json(errors: Sequence[Problem]) -> dict[str, Any]:
+    """The `error` member of a document whose command found `errors` (none: no member), the one a
+    raised InputError gets (cli._fail): a failing rule and a file that would not load were two
+    shapes of `validate --json`, and CI reads `error.problems` for both."""
+    if not errors:
+        return {}
+    return {"error": {"kind": "input", "message": "\n".join(str(p) for p in errors),
+                      "problems": [problem_json(p) for p in errors]}}
 
 
 def problem_json(p: Problem) -> dict[str, Any]:

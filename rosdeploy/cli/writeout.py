@@ -5,8 +5,9 @@ ext4, a quarter of the command). A large fleet renders in forked children (rosde
 so each child writes the robots it rendered, on its own core, instead of sending their files
 back to be written here. Everything lands in a staging folder first; the robots' folders move
 into place only once every check passed, so a refused fleet leaves DIR as it was, and no DIR
-when there was none. A new DIR is staged beside itself and lands in one rename (500 robots'
-folders moved one by one took 14 ms); an existing one is staged inside and filled robot by robot.
+(nor the folders above it that it made) when there was none. A new DIR is staged beside itself
+and lands in one rename (500 robots' folders moved one by one took 14 ms); an existing one is
+staged inside and filled robot by robot.
 """
 from __future__ import annotations
 
@@ -61,7 +62,8 @@ def cannot_write(exc: OSError, root: Path) -> InputError:
 class Staged:
     """A staging folder for `root`: write(release) puts a robot's folder there, from whichever
     process rendered it; finish(commit=True) moves every robot's folder into place. Any finish
-    leaves no staging folder, and no `root` when there was none and nothing landed.
+    leaves no staging folder, and no `root` (nor a folder above it that it made) when there was
+    none and nothing landed.
 
     A write that fails does not stop the render: the fleet's own errors, found later, say more
     than "cannot write" does. The failure is kept and raised by finish(commit=True). A forked
@@ -70,7 +72,12 @@ class Staged:
 
     def __init__(self, root: Path) -> None:
         self.root = root
-        self.beside, self.stage = _staging(root)
+        self.made = _parents(root)     # created here: a refusal removes them again
+        try:
+            self.beside, self.stage = _staging(root)
+        except OSError:
+            _remove_empty(self.made)
+            raise
         self.pid = os.getpid()
         self.failed: OSError | None = None
 
@@ -89,14 +96,50 @@ class Staged:
 
     def finish(self, commit: bool, names: Iterable[str] = ()) -> None:
         """Move `names` into place (commit), or drop what was written (the caller is failing)."""
+        landed = False
         try:
             if commit:
                 if self.failed is not None:
                     raise self.failed
                 if not (self.beside and _renamed_whole(self.stage, self.root)):
                     _move_into_place(self.stage, self.root, names)
+                landed = True
         finally:
             shutil.rmtree(self.stage, ignore_errors=True)
+            if not landed:
+                _remove_empty(self.made)
+
+
+def _parents(root: Path) -> list[str]:
+    """The missing folders above `root`, created, outermost first. A refused `render --out a/b/c`
+    left `a` and `a/b` behind; these are the only ones a refusal may remove."""
+    missing = []
+    parent = root.parent
+    while not os.path.lexists(parent) and parent != parent.parent:
+        missing.append(str(parent))
+        parent = parent.parent
+    made: list[str] = []
+    try:
+        for folder in reversed(missing):
+            try:
+                os.mkdir(folder)
+            except FileExistsError:     # made meanwhile by another process: its folder, not ours
+                continue
+            made.append(folder)
+    except OSError as exc:
+        _remove_empty(made)
+        raise OSError(exc.errno, exc.strerror, str(root)) from exc
+    return made
+
+
+def _remove_empty(folders: list[str]) -> None:
+    """Remove `folders` (made by _parents), innermost first, each only while empty: anything
+    another process put there meanwhile stays, with the folders that hold it."""
+    for folder in reversed(folders):
+        try:
+            os.rmdir(folder)
+        except OSError:
+            return
 
 
 def _staging(root: Path) -> tuple[bool, str]:
@@ -105,7 +148,6 @@ def _staging(root: Path) -> tuple[bool, str]:
     try:
         if os.path.lexists(root):
             return False, tempfile.mkdtemp(prefix=STAGE_PREFIX, dir=root)
-        root.parent.mkdir(parents=True, exist_ok=True)
         # not mkdtemp: its 0700 would become the root's mode; mkdir's 0777 less the umask is what
         # a root made by `mkdir` always had
         stage = root.parent / f"{STAGE_PREFIX}{secrets.token_hex(6)}"   # short: any root's name fits

@@ -28,7 +28,7 @@ class Reader:
 
     def text(self, path: Path, problems: list[Problem]) -> tuple[str, bool] | None:
         try:
-            data = yamlsrc.read_bytes(str(path))
+            data = yamlsrc.read_bytes(str(path), what="an inventory or vars file (YAML or INI)")
         except InputError as exc:
             problems.extend(exc.problems)
             return None
@@ -41,10 +41,9 @@ class Reader:
             return None
         plain, secret = self.vault.read(str(path), data)
         try:
-            return plain.decode("utf-8"), secret
-        except UnicodeDecodeError as exc:
-            problems.append(Problem(str(path), None, "", f"not UTF-8 text ({exc.reason} at byte "
-                                                         f"{exc.start}): save the file as UTF-8"))
+            return yamlsrc.decoded(str(path), plain), secret
+        except InputError as exc:    # at its line, as the fleet file's
+            problems.extend(exc.problems)
             return None
 
     def doc(self, path: Path, problems: list[Problem]) -> Origin | None:
@@ -84,7 +83,7 @@ class Reader:
             raise VaultError([doc.problem(kp, "this `!vault` value has no $ANSIBLE_VAULT or $ROSDEPLOY_VAULT "
                                               f"header, so it is not encrypted: encrypt it with {command}")])
         try:
-            return self.vault.decrypt(data, doc.path).decode("utf-8")
+            plain = self.vault.decrypt(data, doc.path).decode("utf-8")
         except WrongPassword as exc:
             hint = f"; if it was encrypted with another password, re-encrypt it with {command}"
             raise WrongPassword(_at(exc, doc, kp, hint)) from None
@@ -93,6 +92,10 @@ class Reader:
         except UnicodeDecodeError:
             raise VaultError([doc.problem(kp, "a !vault value is not UTF-8 text once decrypted: "
                                               "encrypt text only")]) from None
+        why = yamlsrc.not_text(plain)
+        if why is not None:    # as any other value, named by its code point only
+            raise VaultError([doc.problem(kp, f"this !vault value {why}")])
+        return plain
 
 
 def _at(error: VaultError, doc: Doc, kp: KeyPath, hint: str = "") -> list[Problem]:

@@ -154,7 +154,8 @@ def _refused(name: str, var: str, bad: BadValue, source: str | None) -> str:
     if source is None:
         return f"robot {shown(name)}: {bad.message}"
     # "must be X, got Y": X is the rule, with no part of the value in it
-    must = bad.message.rsplit(", got ", 1)[0] if bad.message.startswith("must be ") else "is not valid here"
+    must = (re.split(r"[,;] got ", bad.message)[0] if bad.message.startswith("must be ") else
+            "is not valid here")
     return (f"robot {shown(name)}: {var}, computed from vault var {shown(source)}, {must}; got '********' (a "
             "secret is never shown: check it with `rosdeploy vault view`)")
 
@@ -225,19 +226,27 @@ def _to_rate(value: Any) -> Any:
 def _to_bool(value: Any) -> bool:
     if isinstance(value, bool):
         return value
-    # Ansible's boolean(): INI writes `gpu=true` as a string.
+    # Ansible's boolean(): INI writes `gpu=true` as a string, and the numbers 1 and 0 are true and false
     if isinstance(value, str) and value.strip().lower() in TRUE + FALSE:
         return value.strip().lower() in TRUE
+    if _is_number_bool(value):
+        return bool(value)
     raise BadValue(f"must be true or false, got {shown(value)}")
+
+
+def _is_number_bool(value: Any) -> bool:
+    """1 and 0 (1.0, 0.0), which Ansible's boolean() reads as true and false, as it does "1" and "0"."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and value in (0, 1)
 
 
 def _safe_text(value: Any, what: str, extra_unsafe: str = "") -> str:
     if not isinstance(value, str) or not value:
         raise BadValue(f"must be {what} (a non-empty string), got {shown(value)}")
-    # also any other whitespace or unprintable character (U+2028, U+0085, ESC): ssh's resolver and
-    # the files rendered from the value (logrotate's paths) would read them as separators
-    bad = sorted(set(value) & (SHELL_UNSAFE | set(extra_unsafe)) | {c for c in value if c.isspace() or
-                                                                     not c.isprintable()})
+    # also any other whitespace or unprintable character (U+2028, U+0085, ESC; str.isprintable()
+    # is false for every separator but the ASCII space): ssh's resolver and the files rendered
+    # from the value (logrotate's paths) would read them as separators
+    bad = sorted(set(value) & (SHELL_UNSAFE | set(extra_unsafe)) |
+                 (set() if value.isprintable() else {c for c in value if not c.isprintable()}))
     if bad:
         chars = ", ".join(repr(c) for c in bad)
         raise BadValue(f"{what} {shown(value)} contains {chars}: whitespace and shell metacharacters are not "
@@ -381,11 +390,13 @@ def _device_path(path: Any, subpath: KeyPath) -> str:
         text = _safe_text(path, "an absolute device path", extra_unsafe=":,")
     except BadValue as bad:
         raise BadValue(bad.message, subpath) from None
-    parts = text.split("/")
-    if not text.startswith("/dev/") or ".." in parts or "." in parts or len(text) <= len("/dev/"):
-        raise BadValue(f"must be a device path under /dev on the robot (e.g. /dev/robot/lidar), got {shown(text)}",
-                       subpath)
-    return text
+    # Written as the kernel reads it (`/dev//x`, `/dev/./x/` are /dev/x): Docker maps every device
+    # under a folder given as a device, so `/dev//` was all of the robot's devices.
+    parts = [part for part in text.split("/") if part not in ("", ".")]
+    if not text.startswith("/") or parts[:1] != ["dev"] or ".." in parts or len(parts) < 2:
+        raise BadValue(f"must be a device path under /dev on the robot (e.g. /dev/robot/lidar), not /dev itself, "
+                       f"got {shown(text)}", subpath)
+    return "/" + "/".join(parts)
 
 
 def _to_udev(value: Any) -> tuple[UdevDevice, ...]:
@@ -454,7 +465,8 @@ def _udev_mode(value: Any, subpath: KeyPath) -> str:
 
 
 def _is_bool(value: Any) -> bool:
-    return isinstance(value, bool) or (isinstance(value, str) and value.strip().lower() in TRUE + FALSE)
+    return isinstance(value, bool) or (isinstance(value, str) and value.strip().lower() in TRUE + FALSE) or \
+        _is_number_bool(value)
 
 
 def _is_udev(value: Any) -> bool:

@@ -13,7 +13,7 @@ from rosdeploy.errors import Problem, shown
 from rosdeploy.inventory.draft import Draft, Origin, make_layer, split_where
 from rosdeploy.inventory.known import GROUP_KEYS, did_you_mean_hint
 from rosdeploy.inventory.ranges import add_hosts, entries_left, valid_name
-from rosdeploy.yamlsrc import MAX_INT_BITS, MAX_NODES, Doc, KeyPath
+from rosdeploy.yamlsrc import MAX_INT_BITS, MAX_NODES, Doc, KeyPath, not_text
 
 
 # A UTF-8 byte-order mark (older Windows editors write one) is refused rather than skipped: Ansible's
@@ -24,7 +24,7 @@ from rosdeploy.yamlsrc import MAX_INT_BITS, MAX_NODES, Doc, KeyPath
 BOM = "\ufeff"
 BOM_FIX = ("the file starts with a byte-order mark (U+FEFF), which Ansible's INI reader takes as part of the "
            "first line: save it as UTF-8 without BOM")
-_SECTION = re.compile(r"\[(?P<name>[^:\]\s]+)(?::(?P<kind>\w+))?\]\s*(?:[#;].*)?")
+_SECTION = re.compile(r"\[(?P<name>[^:\]\s]+)(?::(?P<kind>\w+))?\]\s*(?:#.*)?")   # Ansible's: no `;` after
 _INI_GROUP_LINE = re.compile(r"(?P<name>[^:\]\s]+)\s*(?:[#;].*)?")
 # The 64 MiB file cap does not bound the cost of what a file builds: shlex reads ~1 MB/s, and
 # ast.literal_eval of `[0,0,...]` takes ~200 bytes of memory per byte (10 MB: 2 GB). So a line is
@@ -61,7 +61,8 @@ def parse_ini(path: Path, text: str, secret: bool, draft: Draft) -> None:
                                         "line is a host with its vars; put large values in a group_vars YAML file")
         if state.stopped or not entries_left(draft):
             break       # already refused: reading on would only spend time
-        if line.startswith("["):
+        if _SECTION.fullmatch(line) or (line.startswith("[") and line.endswith("]")):
+            # as Ansible: `[::1]:2222` is a host line (an IPv6 address and a port), not a header
             _end_vars_section(state, draft)
             _ini_section(state, line, number, draft)
         elif state.kind == "hosts":
@@ -154,6 +155,8 @@ def _ini_host(state: _IniState, line: str, number: int, draft: Draft) -> None:
         if not _spend(state, value, number, draft):
             return
         host_vars[key] = _ini_value(value)
+        if not _text_only(key, host_vars[key], origin, draft):
+            return
     layer_origin = _ini_origin(state, number, host_vars)
     add_hosts(tokens[0], state.group, host_vars, layer_origin, draft)
 
@@ -169,6 +172,17 @@ def _ini_var(state: _IniState, line: str, number: int, draft: Draft) -> None:
         return
     state.section_vars[key] = _ini_value(value)
     state.section_lines[(key,)] = number
+    if not _text_only(key, state.section_vars[key], _ini_origin(state, number), draft):
+        del state.section_vars[key]
+
+
+def _text_only(key: str, value: Any, origin: Origin, draft: Draft) -> bool:
+    """False (and a problem at the var) for a value no file can hold: `"\\ud800"` is a literal
+    Ansible's parser reads too, and writing it later crashed (see yamlsrc.not_text)."""
+    why = not_text({key: value})
+    if why is not None:
+        draft.problems.append(origin.problem((key,), why))
+    return why is None
 
 
 def _ini_child(state: _IniState, line: str, number: int, draft: Draft) -> None:

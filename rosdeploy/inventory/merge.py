@@ -10,9 +10,9 @@ from typing import Any, Callable, Iterable, Iterator
 from rosdeploy.errors import Problem, shown
 from rosdeploy.inventory.draft import Draft, GroupDraft, HostDraft, Layer, Origin, split_where
 from rosdeploy.inventory.graph import Graph
-from rosdeploy.inventory.hostvars import PREFIX, BadValue, check_layer, host_fields
+from rosdeploy.inventory.hostvars import CONNECTION, PREFIX, BadValue, check_layer, host_fields
 from rosdeploy.inventory.model import Group, Inventory
-from rosdeploy.inventory.templating import HostVars, TemplateFailed
+from rosdeploy.inventory.templating import HostVars, TemplateFailed, raw_vars
 from rosdeploy.model import Host, frozen_map
 
 
@@ -140,6 +140,7 @@ def _build_host(host: HostDraft, groups: tuple[str, ...], draft: Draft, hostvars
                 origins: dict[str, Origin], layers: list[Layer]) -> Host | None:
     fields, normalised, errors, warnings = host_fields(host.name, _reader(hostvars), origins, hostvars.secret_source)
     errors += _written_from_vault(host.name, hostvars, origins)
+    errors += [p for p in _connection_from_vault(host.name, hostvars, origins) if p.key not in {e.key for e in errors}]
     draft.problems.extend(_hide_secrets(hostvars, errors))
     draft.warnings.extend(_hide_secrets(hostvars, warnings))
     if errors:
@@ -166,6 +167,31 @@ def _written_from_vault(name: str, hostvars: HostVars, origins: dict[str, Origin
                                                    f"{shown(source)}, and "
                                                    "rosdeploy writes it into files that are not secret (compose.yml, "
                                                    "udev rules): set it in a plain vars file"))
+    return problems
+
+
+_CONNECTION_VARS = tuple(var for names in CONNECTION.values() for var in names)
+
+
+def _connection_from_vault(name: str, hostvars: HostVars, origins: dict[str, Origin]) -> list[Problem]:
+    """How rosdeploy reaches a robot is shown in messages and logs (`plan`: "unreachable: HOST:PORT",
+    "SSH key file PATH does not exist"), where masking finds a vault value's own text only: a
+    connection var *computed* from a vault var would be shown there (`{{ token|upper }}`, or its
+    length in a port). A vault value used as it is stays allowed (it is masked)."""
+    problems = []
+    for var in (v for v in _CONNECTION_VARS if v in origins):
+        try:
+            value = hostvars.value(var)    # read, so its template's vault reads are known
+        except TemplateFailed:
+            continue                       # reported where it is read (host_fields), or unused
+        source = hostvars.secret_source(var)
+        if source is None or (source in origins and str(value) == str(raw_vars(hostvars)[source])):
+            continue
+        problems.append(origins[var].problem((var,), f"robot {shown(name)}: {var} is computed from vault var "
+                                             f"{shown(source)}, and rosdeploy shows where and how it connects in "
+                                             "its messages and logs (plan, status), where only a vault value's own "
+                                             f"text is masked: set {var} in a plain vars file, or to the vault "
+                                             "value as it is"))
     return problems
 
 

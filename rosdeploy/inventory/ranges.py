@@ -1,6 +1,7 @@
 """Host entries: `name:port`, `name[01:03]` ranges, and the names Ansible allows."""
 from __future__ import annotations
 
+import ipaddress
 import re
 import string
 import weakref
@@ -50,8 +51,16 @@ def add_hosts(raw: str, group: str, host_vars: dict[str, Any], origin: Origin, d
             draft.add_host(group, name, origin, layer)
 
 
+# Ansible's parse_address: `[v6]:port`, or `host:port` where the host holds no `:` but in a range;
+# ASCII digits only (`robot1:２２` is a host name there, refused here as one).
+_BRACKETED_PORT = re.compile(r"\[([^\[\]]*:[^\[\]]*:[^\[\]]*)\]:([0-9]+)")
+_HOST_PORT = re.compile(r"((?:[^:\[\]]|\[[^\[\]]*\])+):([0-9]+)")
+
+
 def _split_port(raw: str) -> tuple[str, int | None]:
-    found = re.fullmatch(r"(.+):(\d+)", raw)
+    """`name:port` or `[v6]:port` split, as Ansible does; anything else (an IPv6 address such as
+    `fe80::1:22`) is all name."""
+    found = _BRACKETED_PORT.fullmatch(raw) or _HOST_PORT.fullmatch(raw)
     return (found[1], int(found[2])) if found else (raw, None)
 
 
@@ -119,7 +128,7 @@ def _range_items(start: str, end: str, stride: int) -> list[str]:
 
 
 def valid_name(name: str, origin: Origin, draft: Draft, what: str) -> bool:
-    if NAME.fullmatch(name):
+    if NAME.fullmatch(name) or (what == "host" and _ipv6(name)):
         return True
     if what == "group" and name and not any(c.isspace() or not c.isprintable() for c in name):
         # Ansible keeps such a group name, with a warning (TRANSFORM_INVALID_GROUP_CHARS=never).
@@ -128,7 +137,21 @@ def valid_name(name: str, origin: Origin, draft: Draft, what: str) -> bool:
                                                  "and shells may read it differently; rename it",
                                              severity="warning"))
         return True
+    if name[:1] in ("-", ".") and NAME.fullmatch("x" + name):
+        draft.problems.append(origin.problem((), f"invalid {what} name {shown(name)}: it may not start with "
+                                                 f"{shown(name[0])} (a command line would read it as an option, or "
+                                                 "a path); start it with a letter, digit or '_'"))
+        return False
     draft.problems.append(origin.problem((), f"invalid {what} name {shown(name)}: use letters, digits, "
                                              "'_', '-' and '.' (other characters clash with patterns "
                                              "and shells)"))
     return False
+
+
+def _ipv6(name: str) -> bool:
+    """An IPv6 address as a host name (`::1`, `fe80::1`): Ansible takes it as it is."""
+    try:
+        ipaddress.IPv6Address(name)
+    except ValueError:
+        return False
+    return True

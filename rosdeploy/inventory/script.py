@@ -20,7 +20,7 @@ from typing import Any
 from rosdeploy.errors import Problem
 from rosdeploy.inventory.draft import Draft, Origin, make_layer
 from rosdeploy.inventory.ranges import valid_name
-from rosdeploy.yamlsrc import MAX_DEPTH, Doc
+from rosdeploy.yamlsrc import MAX_DEPTH, Doc, KeyPath, dotted, not_text
 
 TIMEOUT = 60.0   # seconds per run: a cloud API behind the script may be slow, a hung one must not hang us
 MAX_OUTPUT = 64 << 20    # bytes: 5,000 robots with rich hostvars print a few MB; a runaway script, without end
@@ -177,7 +177,25 @@ def _run(path: Path, args: list[str], draft: Draft,
         return refuse(f"{command} printed {_kind(data)}: its output must be {what}")
     if _too_deep(data):
         return refuse(f"{command} printed JSON nested too deeply (more than {MAX_DEPTH} levels): fix the script")
+    found = _not_text_at(data, ())
+    if found is not None:   # json.loads reads a lone `\\ud800`; no file rosdeploy writes can hold it
+        return refuse(f"{command} printed a value at {dotted(found[0]) or 'the top'} that {found[1]}")
     return data
+
+
+def _not_text_at(value: Any, keypath: KeyPath) -> tuple[KeyPath, str] | None:
+    """The first key path (and why) whose key or value no file can hold (yamlsrc.not_text); the
+    data is at most MAX_DEPTH deep, checked before."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            found = _not_text_at(key, keypath) or _not_text_at(item, keypath + (key,))
+            if found is not None:
+                return found
+        return None
+    if isinstance(value, list):
+        return next((f for i, item in enumerate(value) if (f := _not_text_at(item, keypath + (i,)))), None)
+    why = not_text(value)
+    return None if why is None else (keypath, why)
 
 
 def script_environment() -> dict[str, str]:

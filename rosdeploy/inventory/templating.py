@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import posixpath
 import re
 import threading
@@ -24,11 +25,11 @@ from typing import Any, Callable, Iterator, Mapping
 import jinja2
 from jinja2.sandbox import unsafe
 
-from rosdeploy.sandbox import MAX_LENGTH, Failing, Sandbox
+from rosdeploy.sandbox import MAX_LENGTH, Failing, NotText, Sandbox
 
 from rosdeploy.errors import InventoryError, Problem, shown
 from rosdeploy.inventory.draft import Origin, strings
-from rosdeploy.yamlsrc import Unsafe
+from rosdeploy.yamlsrc import Unsafe, not_text
 
 _MARKERS = ("{{", "{%", "{#")
 _WHOLE = re.compile(r"^\{\{(?P<expr>.*)\}\}$", re.S)
@@ -346,13 +347,13 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
     try:
         whole = _WHOLE.match(value)
         if whole and "{{" not in whole["expr"] and "}}" not in whole["expr"]:
-            return _expression(whole["expr"], scope)
+            return _checked(key, _expression(whole["expr"], scope))
         template = _compiled(value)
         context = template.new_context(scope, shared=True)
         text = _ENV.concat(template.root_render_func(context))
         if len(text) > MAX_LENGTH:    # `d2: "{{ d1 }}{{ d1 }}"` doubling on: no operator to bound
             raise TemplateFailed(key, f"the value of {key} would be longer than {MAX_LENGTH:,} characters")
-        return text
+        return _checked(key, text)
     except TemplateFailed:
         raise
     except jinja2.TemplateError as exc:
@@ -362,6 +363,18 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
                       deep=True, fixed=True) from None
     except (TypeError, ValueError, ArithmeticError, LookupError, AttributeError) as exc:
         raise _failed(scope, key, value, str(exc)) from None
+
+
+def _checked(key: str, result: Any) -> Any:
+    """A templated value every file can hold, refused here (so at the var's file and line) when not:
+    a lone surrogate or a noncharacter (`{{ "\\ud800" }}`: Jinja reads escapes), or a number that is
+    not finite (`{{ x * 1e308 }}`). The reason names neither the value nor what it read."""
+    why = not_text(result)
+    if why is None and isinstance(result, float) and not math.isfinite(result):
+        why = f"is {str(result).lstrip('-')}, not a finite number: compute a finite one"
+    if why is not None:
+        raise TemplateFailed(key, f"the templated value of {key} {why}")
+    return result
 
 
 def _failed(scope: _Scope, key: str, value: str, reason: str, deep: bool = False, undefined: bool = False,
@@ -405,6 +418,8 @@ def _compiled_expression(expr: str) -> jinja2.Template:
 
 
 def _reason(exc: jinja2.TemplateError) -> str:
+    if isinstance(exc, NotText):
+        return exc.message or ""
     if isinstance(exc, jinja2.sandbox.SecurityError):
         return f"refused by the template sandbox ({exc.message}): inventory templates may read vars only"
     message = exc.message or type(exc).__name__

@@ -1,6 +1,7 @@
 """`group_vars/` and `host_vars/` beside the inventory: files and directories of them."""
 from __future__ import annotations
 
+import errno
 import os
 import re
 from pathlib import Path
@@ -20,7 +21,9 @@ def attach_vars_files(base: Path, reader: Reader, draft: Draft) -> None:
             # a NAME/ folder is walked only for a known name: `group_vars -> /` walks no disk
             files = _vars_dir(chosen, draft) if target is not None and is_dir(chosen) else [chosen]
             if target is None:
-                if kind == "group_vars" and not _empty_dir(chosen):
+                # NAME.yml/ is NAME's vars folder (judged under NAME) and, rarely, that of a group `NAME.yml`
+                named = chosen.suffix in YAML_EXTS and chosen.name == name
+                if kind == "group_vars" and not named and not _empty_dir(chosen):
                     _unknown_group_vars(chosen, name, list(entities), draft)
                 continue
             for path in files:
@@ -46,10 +49,12 @@ def _vars_files(folder: Path, draft: Draft) -> dict[str, Path]:
             continue
         # Not is_file(): a fifo, a device or a dangling symlink named NAME.yml is still NAME's vars
         # file, and reading it gives the error ("not a regular file") rather than losing its vars.
-        if entry.suffix in YAML_EXTS and not is_dir(entry):
+        if entry.suffix in YAML_EXTS:
+            # a folder NAME.yml/ too: Ansible looks for NAME.yml and reads a folder found there
             candidates.setdefault(entry.stem, []).append(entry)
-        elif not entry.name.endswith(SKIPPED_EXTS):   # NAME/ or NAME: host names may hold dots
-            candidates.setdefault(entry.name, []).append(entry)
+        if entry.suffix not in YAML_EXTS or is_dir(entry):
+            if not entry.name.endswith(SKIPPED_EXTS):   # NAME/ or NAME: host names may hold dots
+                candidates.setdefault(entry.name, []).append(entry)
     out: dict[str, Path] = {}
     for name, found in candidates.items():
         # Ansible takes the first of NAME (file or directory), NAME.yml, NAME.yaml, NAME.json.
@@ -113,8 +118,10 @@ def _real(path: Path) -> str:
 
 def _read_vars_file(path: Path, reader: Reader, draft: Draft) -> Layer | None:
     if path.is_symlink() and not path.exists():
-        draft.problems.append(Problem(str(path), None, "", f"a symlink to {shown(os.readlink(path))}, which does not "
-                                      "exist: its vars would be lost; fix the link or remove it"))
+        target = shown(os.readlink(path))
+        why = (f"a symlink loop (through {target})" if _loops(path)
+               else f"a symlink to {target}, which does not exist")
+        draft.problems.append(Problem(str(path), None, "", f"{why}: its vars would be lost; fix the link or remove it"))
         return None
     if discovery.is_password_file(path, reader):
         # never read: its text would be a YAML string, reported as "must be a mapping"
@@ -128,6 +135,14 @@ def _read_vars_file(path: Path, reader: Reader, draft: Draft) -> Layer | None:
         draft.problems.append(origin.problem((), "a vars file must be a mapping of name: value"))
         return None
     return make_layer(origin.doc.data, origin)
+
+
+def _loops(path: Path) -> bool:
+    try:
+        os.stat(path)
+    except OSError as exc:
+        return exc.errno == errno.ELOOP
+    return False
 
 
 def _unknown_group_vars(path: Path, name: str, known: list[str], draft: Draft) -> None:

@@ -144,7 +144,9 @@ def test_secrets() -> None:
     assert "not from a vault file" in fires("secret-not-vaulted", fleet=fleet, hosts=[plain]).message
     silent("secret-not-vaulted", fleet=fleet, hosts=[vaulted])
     short = host(vars={"api_token": "abc"}, secret_values=frozenset({"abc"}))
-    assert "shorter than 4" in fires("secret-short", fleet=fleet, hosts=[short]).message
+    assert "shorter than 8" in fires("secret-short", fleet=fleet, hosts=[short]).message
+    assert "is empty" in fires("secret-empty", fleet=fleet, hosts=[host(vars={"api_token": ""})]).message
+    silent("secret-empty", fleet=fleet, hosts=[vaulted])
     silent("secret-short", fleet=fleet, hosts=[vaulted])
 
 
@@ -364,6 +366,18 @@ def test_a_plain_sudo_password_fires_and_a_vaulted_one_does_not() -> None:
     p = fires("become-password-not-vaulted", hosts=[plain])
     assert "ansible_become_password" in p.message and "sudo-pw-123" not in p.message
     silent("become-password-not-vaulted", hosts=[vaulted])
+
+
+def test_devices_and_mounts_that_are_root() -> None:
+    assert "/dev/mem" in fires("device-root", devices=["/dev/mem:/dev/mem"]).message
+    silent("device-root")
+    assert "/etc" in fires("mount-system-writable", volumes=["/etc:/etc"]).message
+    silent("mount-system-writable", volumes=["/etc:/etc:ro"])
+    base = spec()
+    fleet = replace(base, services=(replace(base.services[0], devices=("motor", "lidar")),))
+    two = host(devices=frozen_map({"motor": "/dev/robot/motor", "lidar": "/dev/robot/motor"}))
+    assert "`motor` and `lidar`" in fires("device-duplicate", fleet=fleet, hosts=[two]).message
+    silent("device-duplicate", fleet=fleet, hosts=[host(devices=frozen_map({"motor": "/a", "lidar": "/b"}))])
 
 
 def test_every_rule_is_tested_and_documented() -> None:

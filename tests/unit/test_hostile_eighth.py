@@ -81,3 +81,45 @@ def test_a_vaulted_sudo_password_is_not_warned_about(capsys: pytest.CaptureFixtu
     group_vars(lab, ansible_become=True, ansible_become_password="{{ api_token }}")
     code, text = cli(capsys, lab, "check")
     assert code == 0 and "become-password-not-vaulted" not in text, text
+
+
+def test_status_warns_of_a_skipped_known_hosts_line_even_when_no_key_is_needed(
+        capsys: pytest.CaptureFixture, lab: Path) -> None:
+    # a broken @revoked line left its key trusted without a word once the robot's own key was found
+    known = lab / "known_hosts"
+    known.write_text("@revoked [127.0.0.1]:1 ssh-ed25519 !!not-base64!!\n")
+    fleet = lab / "fleet.yml"
+    data = yaml.safe_load(fleet.read_text())
+    data["ssh"] = {"known_hosts": str(known), "connect_timeout": "1s", "persist": 0}
+    fleet.write_text(yaml.safe_dump(data, sort_keys=False))
+    host_vars(lab, ansible_port=1)
+    code, text = cli(capsys, lab, "status", "--limit", "r1")
+    assert code == 3 and f"{known}:1:" in text and "warning" in text, text
+
+
+@pytest.mark.parametrize("value, good", [("10k", False), ("10M", False), ("10KB", False), ("10kiB", False),
+                                         ("10MB", True), ("8MiB", True), ("1kB", True), ("10485760", True)])
+def test_a_socket_buffer_is_written_only_in_units_cyclonedds_reads(capsys: pytest.CaptureFixture, lab: Path,
+                                                                    value: str, good: bool) -> None:
+    # CycloneDDS refuses `10k` or `10M` at start: the robot's DDS would not come up
+    group_vars(lab, dds_socket_buffer=value)
+    code, text = cli(capsys, lab, "validate")
+    assert (code == 0) == good and (good or "dds_socket_buffer" in text and "vars.yml:" in text), text
+
+
+def test_a_user_compose_template_that_writes_a_key_twice_is_invalid(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    # check passed it; Compose v2 refuses a mapping with a key twice ("mapping key already defined")
+    from test_hostile import edit
+    builtin = Path(__file__).resolve().parents[2] / "rosdeploy" / "templates" / "compose.yml.j2"
+    (lab / "templates").mkdir()
+    (lab / "templates" / "compose.yml.j2").write_text(builtin.read_text() + "x-note: 1\nx-note: 2\n")
+    edit(lab, lambda d: d.update(templates="./templates"))
+    code, text = cli(capsys, lab, "check")
+    assert code == 2 and "compose-invalid" in text and "duplicate key" in text, text
+
+
+def test_a_home_from_a_vault_var_says_got_once(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    group_vars(lab, rosdeploy_home="{{ api_token }}")
+    code, text = cli(capsys, lab, "validate")
+    line = next(each for each in text.splitlines() if "rosdeploy_home" in each)
+    assert code == 2 and line.count("got ") == 1 and "'********'" in line, text

@@ -17,14 +17,24 @@ lab = test_hostile.lab
 @pytest.mark.parametrize("var, value, where", [
     ("ansible_become_user", "{{ api_token[1:] }}", "ansible_become_user is '********'"),
     ("ansible_become_method", "{{ api_token|upper }}", "ansible_become_method '********'"),
-    ("ansible_user", "{{ api_token[1:] }}", "ansible_become is false for the SSH user"),
 ])
 def test_a_become_var_computed_from_a_vault_var_is_never_quoted(capsys: pytest.CaptureFixture, lab: Path,
                                                                 var: str, value: str, where: str) -> None:
-    group_vars(lab, **{var: value}, **({"ansible_become": False} if var == "ansible_user" else {}))
+    group_vars(lab, **{var: value})
     for command in ("validate", "check"):
         code, text = cli(capsys, lab, command)
         assert code == 0 and where in text, text                 # a warning, at its var
+        for leaked in (LAB_SECRET[1:], LAB_SECRET.upper()):
+            assert leaked not in text, (command, text)
+
+
+def test_an_ssh_user_computed_from_a_vault_var_is_refused_unquoted(capsys: pytest.CaptureFixture, lab: Path) -> None:
+    # it was a warning at the become check; it is refused at load since the eighth round: plan and
+    # status show where and how they connect, and only a vault value's own text is masked there
+    group_vars(lab, ansible_user="{{ api_token[1:] }}", ansible_become=False)
+    for command in ("validate", "check"):
+        code, text = cli(capsys, lab, command)
+        assert code == 2 and "ansible_user is computed from vault var 'api_token'" in text, (command, text)
         for leaked in (LAB_SECRET[1:], LAB_SECRET.upper()):
             assert leaked not in text, (command, text)
 
