@@ -174,6 +174,18 @@ class _EnvSecrets(Sequence[tuple[str, str]]):
 _PLAIN = re.compile(r"[A-Za-z0-9 _./:@%+,=${}()*!?#&~^\[\]-]*")
 
 
+def _dumped(data: Any) -> str:
+    """`compose:` pass-through keys as YAML. PyYAML writes U+2028, U+2029 and U+0085 raw inside a
+    quoted scalar, where YAML reads them as line breaks and folds them into a space (two
+    extra_hosts entries became one): with one of them in the data, every non-ASCII character is
+    escaped instead."""
+    text = yaml.dump(data, Dumper=_Dumper, sort_keys=True, default_flow_style=False, allow_unicode=True,
+                     width=1 << 16)
+    if any(c in text for c in "\u2028\u2029\x85"):
+        text = yaml.dump(data, Dumper=_Dumper, sort_keys=True, default_flow_style=False, width=1 << 16)
+    return text
+
+
 def yaml_str(value: Any) -> str:
     """A double-quoted YAML scalar that parses back to str(value), whatever it holds."""
     text = str(value)
@@ -607,9 +619,7 @@ class Renderer:
         hc = svc.healthcheck
         extra, extra_data = "", dict(svc.extra) if svc.compose_interpolate else _escape_dollars(dict(svc.extra))
         if svc.extra:
-            dumped = yaml.dump(extra_data, Dumper=_Dumper, sort_keys=True,
-                               default_flow_style=False, allow_unicode=True, width=1 << 16)
-            extra = "".join(f"    {line}\n" for line in dumped.splitlines())
+            extra = "".join(f"    {line}\n" for line in _dumped(extra_data).split("\n") if line)
         return _Static(
             service=svc, image=spec.image_ref(svc), environment=plain, templated=templated,
             secrets=tuple(sorted(svc.secret_env.items())),

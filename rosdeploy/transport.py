@@ -100,7 +100,20 @@ def ssh_config_paths(options: SSHOptions) -> list[str]:
     """The ssh configs read, as fabric reads them: the fleet's file, else the system's then the user's."""
     if options.ssh_config:
         return [os.path.expanduser(options.ssh_config)]
-    return [p for p in ("/etc/ssh/ssh_config", os.path.expanduser("~/.ssh/config")) if os.path.exists(p)]
+    return [p for p in ("/etc/ssh/ssh_config", os.path.expanduser("~/.ssh/config")) if _present(p)]
+
+
+def _present(path: str) -> bool:
+    """A default config to read: absent (or a dangling link) is none, as in OpenSSH; one that
+    exists but cannot be read (a symlink loop, no permission) is read, and its error said, as
+    OpenSSH refuses to run then. os.path.exists() called a loop absent, and it was skipped silently."""
+    try:
+        os.stat(path)
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return True
+    return True
 
 
 def parsed_ssh_config(options: SSHOptions) -> paramiko.SSHConfig:

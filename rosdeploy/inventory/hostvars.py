@@ -5,6 +5,7 @@ import functools
 import ipaddress
 import os
 import re
+import stat
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
@@ -324,6 +325,21 @@ def _to_local_path(value: Any) -> str:
     return _safe_text(os.path.abspath(os.path.expanduser(value)), "a file path")
 
 
+def _to_key_file(value: Any) -> str:
+    """A private key file on this machine. One that exists but is no regular file (a folder, a
+    fifo, a device) is refused here, where validate sees it; a missing one is the connection's
+    error (it may be made before apply). The file itself is read only when connecting."""
+    path = _to_local_path(value)
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return path
+    if not stat.S_ISREG(mode):
+        raise BadValue(f"{shown(path)} is {'a folder' if stat.S_ISDIR(mode) else 'not a regular file'}, not a "
+                       "private key file: give the key's path")
+    return path
+
+
 def _to_known_hosts(value: Any) -> str:
     """A known_hosts path, refused at load when it cannot be one (fleet.known_hosts_problem)."""
     path = _to_local_path(value)
@@ -479,7 +495,7 @@ IMAGE_ROUTES = ("registry", "ssh")
 _ASCII_INT = re.compile(r"[0-9]+")
 
 CONVERTERS: dict[str, Callable[[Any], Any]] = {
-    "address": _to_address, "port": _to_port, "user": _to_user, "key_file": _to_local_path}
+    "address": _to_address, "port": _to_port, "user": _to_user, "key_file": _to_key_file}
 # Host field -> the names Ansible's ssh plugin reads for it, lowest precedence first.
 CONNECTION: dict[str, tuple[str, ...]] = {
     "address": ("ansible_host", "ansible_ssh_host"),

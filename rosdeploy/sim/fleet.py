@@ -19,7 +19,7 @@ import paramiko
 
 from rosdeploy.errors import InputError, Problem, SimError
 from rosdeploy.sim import registry
-from rosdeploy.sim.faults import heal
+from rosdeploy.sim.faults import faults, heal
 from rosdeploy.sim.images import ensure_images, remove_images
 from rosdeploy.sim.inventory import inventory_text
 from rosdeploy.sim.keys import ensure_keypair, known_hosts_text, public_key
@@ -84,10 +84,21 @@ def up(robots: int = 3, home: Path | str | None = None, progress: Progress | Non
     _ensure_robots(paths, fleet, containers, images.robot, progress)
     _write_fleet_files(paths, fleet)
     write_state(paths, SimState(tuple(r.name for r in fleet), pid))
+    _heal_left_faults([r for r in fleet if r.container in containers], progress)
     progress(f"waiting for {len(fleet)} robots (sshd and their own dockerd)")
     wait_ready(fleet)
     progress(f"fleet up: inventory {paths.inventory}")
     return fleet_of(paths, fleet)
+
+
+def _heal_left_faults(robots: Sequence[SimRobot], progress: Progress) -> None:
+    """`up` brings every robot up reachable: a fault left in force (a run killed between `sim cut`
+    and `sim heal`) kept a robot's sshd silent, and `up` waited 90 s for it, then failed."""
+    for robot in robots:
+        left = faults(robot.name)
+        if left:
+            progress(f"{robot.name}: healing a fault left in force ({'; '.join(left)[:120]})")
+            heal(robot.name)
 
 
 def _own_containers(paths: SimPaths) -> dict[str, Container]:

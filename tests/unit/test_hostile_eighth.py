@@ -123,3 +123,28 @@ def test_a_home_from_a_vault_var_says_got_once(capsys: pytest.CaptureFixture, la
     code, text = cli(capsys, lab, "validate")
     line = next(each for each in text.splitlines() if "rosdeploy_home" in each)
     assert code == 2 and line.count("got ") == 1 and "'********'" in line, text
+
+
+@pytest.mark.parametrize("separator", ["\u2028", "\u2029", "\x85"])
+def test_a_line_separator_in_a_compose_pass_through_value_reaches_compose_as_written(
+        capsys: pytest.CaptureFixture, lab: Path, separator: str) -> None:
+    # PyYAML wrote it raw in a quoted scalar, and YAML folded it into a space: two extra_hosts became one
+    from test_hostile import edit
+    hosts = [f"a:1.2.3.4{separator}b:5.6.7.8", "c:9.9.9.9"]
+    edit(lab, lambda d: d["services"]["driver"].update(compose={"extra_hosts": hosts, "domainname": f"x{separator}y"}))
+    code, text = cli(capsys, lab, "render")
+    assert code == 0, text
+    driver = yaml.safe_load((lab / "out" / "r1" / "compose.yml").read_text())["services"]["driver"]
+    assert driver["extra_hosts"] == hosts and driver["domainname"] == f"x{separator}y"
+
+
+@pytest.mark.parametrize("kind", ["folder", "fifo"])
+def test_a_key_file_that_is_no_regular_file_is_refused_by_validate(capsys: pytest.CaptureFixture, lab: Path,
+                                                                   kind: str) -> None:
+    # validate passed it; status hung on a fifo, or called a folder an unreachable robot
+    import os
+    key = lab / "key"
+    key.mkdir() if kind == "folder" else os.mkfifo(key)
+    host_vars(lab, ansible_ssh_private_key_file=str(key))
+    code, text = cli(capsys, lab, "validate")
+    assert code == 2 and "r1.yml:" in text and "ansible_ssh_private_key_file" in text and "not" in text, text

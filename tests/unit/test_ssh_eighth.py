@@ -252,3 +252,15 @@ def test_10_validate_refuses_the_ssh_config_status_refuses(tmp_path: Path, text:
     with pytest.raises(FleetSpecError) as raised:
         fleet.load_fleet(tmp_path / "fleet.yml")
     assert f"ssh_config:{line}:" in str(raised.value.problems[0]), raised.value.problems
+
+
+def test_a_user_config_that_is_a_symlink_loop_is_read_and_refused_not_skipped(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # os.path.exists() called the loop absent: rosdeploy went on without the user's config, silently
+    monkeypatch.setenv("HOME", str(tmp_path))
+    (tmp_path / ".ssh").mkdir()
+    (tmp_path / ".ssh" / "config").symlink_to(tmp_path / ".ssh" / "config")
+    assert str(tmp_path / ".ssh" / "config") in transport.ssh_config_paths(SSHOptions())
+    (tmp_path / ".ssh" / "config").unlink()
+    (tmp_path / ".ssh" / "config").symlink_to(tmp_path / "nowhere")      # dangling: none, as in OpenSSH
+    assert str(tmp_path / ".ssh" / "config") not in transport.ssh_config_paths(SSHOptions())
