@@ -300,7 +300,7 @@ class SSHTransport:
                           connect_timeout=timeout, connect_kwargs={**kwargs, "banner_timeout": timeout})
 
     def _jump_hosts(self, conn: Connection, config: Config) -> list[Connection]:
-        """ProxyJump's hosts, first hop first, built here: fabric's hops kept its AutoAddPolicy (any
+        """ProxyJump's hosts, first hop first, built here: fabric's hops kept fabric's auto-add policy (any
         jump host key was accepted), had no connect timeout, were dropped when a hop had the robot's
         address and made `ProxyJump none` a host called "none". A hop's own ProxyJump is not followed."""
         try:
