@@ -730,7 +730,11 @@ def _unwaived_sources(ctx: Context, name: str, svc: dict, key: str) -> Iterator[
 # (/etc/shadow, /root/.ssh) a container that writes the block device can rewrite.
 _ROOT_DEVICES = ("/dev/mem", "/dev/kmem", "/dev/port", "/dev/cpu/microcode", "/dev/mapper/control",
                  "/dev/loop-control")
-_DISK = re.compile(r"/dev/(?:(?:sd|hd|vd|xvd)[a-z]|nvme[0-9]|mmcblk[0-9]|sg[0-9]|loop[0-9]|dm-[0-9]|md[0-9]|mapper/)")
+# Disks by kernel name, and the udev links to them (/dev/disk/by-uuid/..., /dev/block/8:1,
+# /dev/root): the same disk under another name. mtd*/ubi* are the raw flash of embedded boards.
+_DISK = re.compile(r"/dev/(?:(?:sd|hd|vd|xvd)[a-z]|nvme[0-9]|mmcblk[0-9]|sg[0-9]|loop[0-9]|dm-[0-9]|md[0-9]|mapper/"
+                   r"|nbd[0-9]|zram[0-9]|ram[0-9]|mtd[0-9]|mtdblock[0-9]|ubi[0-9]|ubiblock[0-9]|disk(?:/|$)"
+                   r"|block(?:/|$)|root$)")
 
 
 @functools.lru_cache(maxsize=1024)    # pure, and a fleet's robots share their mounts: once per path

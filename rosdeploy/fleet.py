@@ -1391,7 +1391,12 @@ def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]
     _check_compose_values(r, where, extra)
     _check_compose_formats(r, where, extra)
     links = extra.get("links")
-    for i, link in enumerate(links if isinstance(links, list) else []):
+    for key in ("links", "external_links"):
+        if host_net and extra.get(key):
+            r.error(where + (key,), "Docker refuses links on host networking (`ros.network_mode: host`: \"host "
+                                    "type networking can't be used with links\"); on the host's network the "
+                                    "services reach each other at localhost: remove it")
+    for i, link in enumerate(links if isinstance(links, list) and not host_net else []):
         target = str(link).split(":", 1)[0]
         if target == kp[-1]:
             r.error(where + ("links", i), "a service cannot link to itself (Compose refuses the cycle): remove it")

@@ -128,12 +128,18 @@ _HOST_KEY_CHECKING = ("ansible_host_key_checking", "ansible_ssh_host_key_checkin
 _SSH_CONNECTIONS = ("ssh", "smart", "paramiko", "paramiko_ssh")
 
 
+def connection_ignored(value: Any) -> str:
+    """The warning for an `ansible_connection` other than SSH, or "" (a template is judged by its
+    value, per robot: merge._templated_connection)."""
+    if not isinstance(value, str) or value in _SSH_CONNECTIONS or "{{" in value:
+        return ""
+    return f"{shown(value)} is ignored: rosdeploy reaches every robot over SSH (with sshd at ansible_host)"
+
+
 def _not_honoured(key: str, value: Any) -> str:
     """The warning for an Ansible connection var rosdeploy ignores, or "" when it changes nothing."""
     if key == "ansible_connection":
-        if not isinstance(value, str) or value in _SSH_CONNECTIONS or "{{" in value:
-            return ""
-        return f"{shown(value)} is ignored: rosdeploy reaches every robot over SSH (with sshd at ansible_host)"
+        return connection_ignored(value)
     if key in _PASSWORDS:
         return ("ignored: rosdeploy logs in with SSH keys only (ansible_ssh_private_key_file, the ssh agent or "
                 "the ssh config's IdentityFile); a robot that takes only a password is refused at connect")

@@ -10,7 +10,7 @@ from typing import Any, Callable, Iterable, Iterator
 from rosdeploy.errors import Problem, shown
 from rosdeploy.inventory.draft import Draft, GroupDraft, HostDraft, Layer, Origin, split_where
 from rosdeploy.inventory.graph import Graph
-from rosdeploy.inventory.hostvars import CONNECTION, PREFIX, BadValue, check_layer, host_fields
+from rosdeploy.inventory.hostvars import CONNECTION, PREFIX, BadValue, check_layer, connection_ignored, host_fields
 from rosdeploy.inventory.model import Group, Inventory
 from rosdeploy.inventory.templating import HostVars, TemplateFailed, raw_vars
 from rosdeploy.model import Host, frozen_map
@@ -142,7 +142,7 @@ def _build_host(host: HostDraft, groups: tuple[str, ...], draft: Draft, hostvars
     errors += _written_from_vault(host.name, hostvars, origins)
     errors += [p for p in _connection_from_vault(host.name, hostvars, origins) if p.key not in {e.key for e in errors}]
     draft.problems.extend(_hide_secrets(hostvars, errors))
-    draft.warnings.extend(_hide_secrets(hostvars, warnings))
+    draft.warnings.extend(_hide_secrets(hostvars, warnings + _templated_connection(hostvars, origins)))
     if errors:
         return None
     for key, value in normalised.items():
@@ -193,6 +193,20 @@ def _connection_from_vault(name: str, hostvars: HostVars, origins: dict[str, Ori
                                              f"text is masked: set {var} in a plain vars file, or to the vault "
                                              "value as it is"))
     return problems
+
+
+def _templated_connection(hostvars: HostVars, origins: dict[str, Origin]) -> list[Problem]:
+    """An `ansible_connection` given as a template, judged by what it gives (check_layer skips it):
+    one warning at the var for every robot it gives the same value."""
+    raw = raw_vars(hostvars).get("ansible_connection")
+    if not (isinstance(raw, str) and "{{" in raw and "ansible_connection" in origins):
+        return []
+    try:
+        value = hostvars.value("ansible_connection")
+    except TemplateFailed:
+        return []                # its own error, where it is read
+    why = connection_ignored(value)
+    return [origins["ansible_connection"].problem(("ansible_connection",), why, severity="warning")] if why else []
 
 
 def _hide_secrets(hostvars: HostVars, problems: list[Problem]) -> list[Problem]:
