@@ -74,9 +74,11 @@ _SECRET_ENV_REF = re.compile(r"\$\{?ROSDEPLOY_VAULT_PASSWORD")
 _CONTROL = {"\n": "a newline", "\r": "a carriage return", "\0": "a NUL byte"}
 
 # rosdeploy sets these per robot (checklist item 8): a fleet file must not hard-code them.
+# ROS_LOG_DIR: the container's /ros_log, the robot's logs/<service> that its logrotate rotates; moved
+# elsewhere, the logs fill the container's layer unrotated.
 RESERVED_ENV = frozenset({"ROS_DOMAIN_ID", "RMW_IMPLEMENTATION", "CYCLONEDDS_URI",
                           "FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
-                          "NVIDIA_VISIBLE_DEVICES"})
+                          "NVIDIA_VISIBLE_DEVICES", "ROS_LOG_DIR"})
 # compose keys rosdeploy renders from fleet keys; `compose:` may not override them.
 MANAGED_COMPOSE = {"image": "image/tag", "command": "command", "environment": "environment",
                    "env_file": "environment", "devices": "devices", "restart": "restart",
@@ -1327,15 +1329,23 @@ def _check_gate_can_pass(r: Reader, health: dict) -> None:
                 "from the switch too: no release could pass the gate; make stable shorter than timeout")
 
 
+def _reserved_env(name: str) -> str:
+    if name == "ROS_LOG_DIR":
+        return ("ROS_LOG_DIR is /ros_log, set by rosdeploy: the robot's logs/<service> folder, which its "
+                "logrotate rotates; logs written elsewhere fill the container unrotated: remove it here")
+    return f"{name} is set per robot by rosdeploy (from the inventory and `ros:`); remove it here"
+
+
 def _check_service(r: Reader, kp: KeyPath, svc: dict, names: list[str], registry: Any) -> None:
     _check_image_registry(r, kp + ("image",), svc.get("image"), registry)
     env = r.names(kp + ("environment",), svc.get("environment"))
     for name in env:
         if name in RESERVED_ENV:
-            r.error(kp + ("environment", name), f"{name} is set per robot by rosdeploy (from the inventory and "
-                                                "`ros:`); remove it here")
+            r.error(kp + ("environment", name), _reserved_env(name))
     for name in r.names(kp + ("secrets",), svc.get("secrets")):
-        if name in env:
+        if name in RESERVED_ENV:
+            r.error(kp + ("secrets", name), _reserved_env(name))
+        elif name in env:
             r.error(kp + ("secrets", name), f"{name} is also in `environment`: keep it in one of the two")
     for i, dep in _deps(r, kp[-1]):
         _check_dependency(r, kp + ("depends_on", i), kp[-1], dep, names, r.raw(("services", dep)))

@@ -31,7 +31,7 @@ from rosdeploy.checks import host_problem, parse_env
 from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import InputError, Problem, RenderError, shown
 from rosdeploy.files import FILES_DIR, MAX_TEMPLATE_BYTES, FileRenderer
-from rosdeploy.fleet import MANAGED_COMPOSE, size_bytes
+from rosdeploy.fleet import MANAGED_COMPOSE, RESERVED_ENV, size_bytes
 from rosdeploy.inventory.draft import strings
 from rosdeploy.inventory.templating import (HostVars, not_quoted, raw_vars, secret_read, secret_reads,
                                             shown_unless_secret, unless_secret)
@@ -777,8 +777,8 @@ class Renderer:
                                             f"{name} is read from {chosen[name][0]} by service {chosen[name][1]} "
                                             f"and from {var} here: one .env cannot hold both"))
                 chosen.setdefault(name, (var, st.service.name))
-        reserved = {"COMPOSE_PROJECT_NAME", "ROS_DOMAIN_ID", "RMW_IMPLEMENTATION", "ROSDEPLOY_PROJECT",
-                    "ROSDEPLOY_VERSION"} | {image_var(st.service.name) for st in self.statics}
+        reserved = {"COMPOSE_PROJECT_NAME", "ROSDEPLOY_PROJECT", "ROSDEPLOY_VERSION", *RESERVED_ENV} | \
+            {image_var(st.service.name) for st in self.statics}
         out = []
         for name, (var, service) in sorted(chosen.items()):
             key = ("services", service, "secrets", name)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import yaml
 
 from test_hostile import cli, edit, lab, refused_everywhere
 
@@ -62,3 +63,59 @@ def test_a_templated_ssh_connection_says_nothing(capsys: pytest.CaptureFixture, 
     _group_vars(lab, "ansible_connection: \"{{ 'ss' ~ 'h' }}\"\n")
     code, text = cli(capsys, lab, "validate")
     assert code == 0 and "ansible_connection" not in text, text
+
+
+# ------------------------------------------------------------------ 4. names YAML reads as another type
+
+ODD_NAMES = ["yes", "on", "true", "null", "off", "y"]
+
+
+@pytest.mark.parametrize("name", ODD_NAMES)
+def test_a_service_name_yaml_reads_as_a_bool_or_null_is_written_quoted(capsys: pytest.CaptureFixture, lab: Path,
+                                                                      name: str) -> None:
+    # `{{ svc.name }}:` wrote `yes:`: Compose v1 said "the services name True must be a quoted string",
+    # v2 "non-string key in services"; check judged a data copy and found nothing
+    def rename(d: dict) -> None:
+        d["services"][name] = d["services"].pop("bridge")
+    edit(lab, rename)
+    code, text = cli(capsys, lab, "render")
+    assert code == 0, text
+    for robot in ("r1", "r2"):
+        services = yaml.safe_load((lab / "out" / robot / "compose.yml").read_text())["services"]
+        assert name in services and all(isinstance(key, str) for key in services), services.keys()
+
+
+@pytest.mark.parametrize("name", ["yes", "null", "on"])
+def test_a_secret_name_yaml_reads_as_a_bool_or_null_reaches_the_container_as_written(
+        capsys: pytest.CaptureFixture, lab: Path, name: str) -> None:
+    # v1 gave the container `True=<secret>`; v2 refused `<nil>` as a variable name
+    def rename(d: dict) -> None:
+        secrets = d["services"]["bridge"]["secrets"]
+        secrets[name] = secrets.pop(next(iter(secrets)))
+    edit(lab, rename)
+    code, text = cli(capsys, lab, "render")
+    assert code == 0, text
+    environment = yaml.safe_load((lab / "out" / "r1" / "compose.yml").read_text())["services"]["bridge"]["environment"]
+    assert name in environment and all(isinstance(key, str) for key in environment), environment.keys()
+
+
+# ------------------------------------------------------------------ 5. ROS_LOG_DIR is rosdeploy's
+
+@pytest.mark.parametrize("key", ["environment", "secrets"])
+def test_ros_log_dir_is_refused_in_environment_and_secrets(capsys: pytest.CaptureFixture, lab: Path, key: str) -> None:
+    # it moved the ROS logs out of /ros_log: the robot's logrotate never saw them
+    def add(d: dict) -> None:
+        value = "/tmp" if key == "environment" else "api_token"
+        d["services"]["bridge"].setdefault(key, {})["ROS_LOG_DIR"] = value
+    edit(lab, add)
+    refused_everywhere(capsys, lab, f"services.bridge.{key}.ROS_LOG_DIR: ROS_LOG_DIR is /ros_log, set by rosdeploy")
+
+
+@pytest.mark.parametrize("name", ["CYCLONEDDS_URI", "NVIDIA_VISIBLE_DEVICES"])
+def test_a_secret_named_as_a_variable_rosdeploy_sets_is_refused(capsys: pytest.CaptureFixture, lab: Path,
+                                                                name: str) -> None:
+    def add(d: dict) -> None:
+        secrets = d["services"]["bridge"]["secrets"]
+        secrets[name] = secrets.pop(next(iter(secrets)))
+    edit(lab, add)
+    refused_everywhere(capsys, lab, f"services.bridge.secrets.{name}: {name} is set per robot by rosdeploy")
