@@ -50,8 +50,9 @@ class Host:
     address: str                            # ansible_host, or the name
     port: int = 22                          # ansible_port
     user: str | None = None                 # ansible_user (None: ssh config / local user)
-    key_file: str | None = None             # ansible_ssh_private_key_file, absolute
-    key_file_var: str = ""                  # where key_file was set: "var (file:line)", for messages
+    # the controller's side (key_file, key_file_var, source): not in the repr, which templates can print
+    key_file: str | None = field(default=None, repr=False)   # ansible_ssh_private_key_file, absolute
+    key_file_var: str = field(default="", repr=False)        # where key_file was set: "var (file:line)"
     ros_domain_id: int = 0
     devices: Mapping[str, str] = field(default_factory=frozen_map)   # logical name -> path on robot
     udev: tuple[UdevDevice, ...] = ()
@@ -59,7 +60,7 @@ class Host:
     network: str = "default"                # robots sharing a network must not share a domain ID
     # every value that came from a vault file; not in repr: `{{ host|string }}` would write them all
     secret_values: frozenset[str] = field(default=frozenset(), repr=False)
-    source: str = ""                        # "file:line" where the host was declared
+    source: str = field(default="", repr=False)   # "file:line" where the host was declared
 
 
 # ------------------------------------------------------------------------ fleet
@@ -163,9 +164,11 @@ class ImagePolicy:
 
 @dataclass(frozen=True)
 class FleetSpec:
-    path: str                       # the fleet file
+    # path, inventory, templates, known_hosts, ssh_config: the controller's paths, not in the repr
+    # (templates can print it; render._CONTROLLER_FIELDS)
+    path: str = field(repr=False)                   # the fleet file
     project: str                    # compose project name on every robot
-    inventory: str                  # resolved path of the inventory
+    inventory: str = field(repr=False)              # resolved path of the inventory
     registry: str                   # e.g. "registry.local:5000"
     version: str
     services: tuple[Service, ...]
@@ -175,10 +178,10 @@ class FleetSpec:
     log_max_size: str = "10m"
     log_max_file: int = 3
     log_rotate_every: float | None = 300.0   # seconds between runs of the ROS log rotation (None: off; rotation.py)
-    templates: str | None = None    # a directory whose files override the built-in templates
+    templates: str | None = field(default=None, repr=False)   # a folder whose files override the built-in ones
     deploy_root: str = "~/rosdeploy"  # on the robot; "~" is the SSH user's home
-    known_hosts: str | None = None  # None: ~/.ssh/known_hosts
-    ssh_config: str | None = None   # None: ~/.ssh/config if present
+    known_hosts: str | None = field(default=None, repr=False)  # None: ~/.ssh/known_hosts
+    ssh_config: str | None = field(default=None, repr=False)   # None: ~/.ssh/config if present
     connect_timeout: float = 10.0
     command_timeout: float = 600.0
     ssh_persist: float = 60.0       # seconds read-only commands keep connections (0: off)

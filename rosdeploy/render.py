@@ -472,7 +472,8 @@ def _builtin_environment() -> jinja2.Environment:
     rendered in Jinja's sandbox without rosdeploy's bounds on top (sandbox.ShippedSandbox).
     Every value a user writes (fleet values, `files:`, an override folder) renders in the
     bounded sandbox (Renderer._environment)."""
-    env = ShippedSandbox(plain_types=_VIEWS, loader=jinja2.FileSystemLoader(str(TEMPLATE_DIR)),
+    env = ShippedSandbox(plain_types=_VIEWS, hidden_of=_CONTROLLER_FIELDS,
+                         loader=jinja2.FileSystemLoader(str(TEMPLATE_DIR)),
                          trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True, auto_reload=False,
                          bytecode_cache=shipped_cache())
     env.filters.update(FILTERS)
@@ -480,6 +481,11 @@ def _builtin_environment() -> jinja2.Environment:
 
 
 _VIEWS = (ServiceView, HealthView, UdevView, Host, FleetSpec)
+# The controller's side, which templates do not see: its paths (as given on its command line, or
+# with its environment expanded) and where it read the robot's declaration. Not in the repr
+# either (`{{ spec }}`), so the same inputs render the same release from any folder or machine.
+_CONTROLLER_FIELDS = {FleetSpec: frozenset({"path", "inventory", "templates", "known_hosts", "ssh_config"}),
+                      Host: frozenset({"key_file", "key_file_var", "source"})}
 _BUILTIN = _builtin_environment()
 
 
@@ -539,7 +545,7 @@ class Renderer:
         """Sandboxed (rosdeploy.sandbox): fleet values and template folders are configuration, not code."""
         loaders: list[jinja2.BaseLoader] = [_TemplateFolder(str(self.override))] if self.override else []
         loaders.append(jinja2.FileSystemLoader(str(TEMPLATE_DIR)))
-        env = Sandbox(plain_types=_VIEWS,
+        env = Sandbox(plain_types=_VIEWS, hidden_of=_CONTROLLER_FIELDS,
                       loader=jinja2.ChoiceLoader(loaders),
                       trim_blocks=True, lstrip_blocks=True,
                       keep_trailing_newline=True, auto_reload=False)

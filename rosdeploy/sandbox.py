@@ -491,9 +491,13 @@ class _PlainReads(ImmutableSandboxedEnvironment):
     without a leading `_` on them."""
 
     plain_types: frozenset[type] = frozenset()
+    # fields of a plain type no template reads (see HIDDEN), e.g. the controller's own paths: a
+    # release must not depend on where rosdeploy runs, nor carry what the environment expanded
+    hidden_of: Mapping[type, frozenset[str]] = {}
 
     def getattr(self, obj: Any, attribute: str) -> Any:
-        if type(obj) in self.plain_types and not attribute.startswith("_") and attribute not in HIDDEN:
+        if type(obj) in self.plain_types and not attribute.startswith("_") and attribute not in HIDDEN \
+                and attribute not in self.hidden_of.get(type(obj), ()):
             try:
                 return getattr(obj, attribute)
             except AttributeError:
@@ -501,7 +505,8 @@ class _PlainReads(ImmutableSandboxedEnvironment):
         return super().getattr(obj, attribute)
 
     def is_safe_attribute(self, obj: Any, attr: str, value: Any) -> bool:
-        return attr not in HIDDEN and super().is_safe_attribute(obj, attr, value)
+        return attr not in HIDDEN and attr not in self.hidden_of.get(type(obj), ()) and \
+            super().is_safe_attribute(obj, attr, value)
 
     # Parsing, code generation and Python's compile() all recurse once per nesting level: a
     # value like `{{ [[[[...1]]]] }}` 1,000 deep is a syntax error of the value, not a crash.
@@ -553,8 +558,10 @@ class ShippedSandbox(_PlainReads):
     below (work budget, output count, filter weighing). Their loops and output are bounded by
     their inputs, which the loaders bound, and those checks were a sixth of the render time."""
 
-    def __init__(self, plain_types: tuple[type, ...] = (), **kwargs: Any) -> None:
+    def __init__(self, plain_types: tuple[type, ...] = (), hidden_of: Mapping[type, frozenset[str]] | None = None,
+                 **kwargs: Any) -> None:
         self.plain_types = frozenset(plain_types)
+        self.hidden_of = hidden_of or {}
         kwargs.setdefault("undefined", jinja2.StrictUndefined)
         kwargs.setdefault("autoescape", False)
         super().__init__(**kwargs)
@@ -612,9 +619,11 @@ class Sandbox(_PlainReads):
     sliced = staticmethod(sliced)
     literal = staticmethod(literal)
 
-    def __init__(self, plain_types: tuple[type, ...] = (), **kwargs: Any) -> None:
-        """`plain_types`: see _PlainReads."""
+    def __init__(self, plain_types: tuple[type, ...] = (), hidden_of: Mapping[type, frozenset[str]] | None = None,
+                 **kwargs: Any) -> None:
+        """`plain_types`, `hidden_of`: see _PlainReads."""
         self.plain_types = frozenset(plain_types)
+        self.hidden_of = hidden_of or {}
         kwargs.setdefault("undefined", jinja2.StrictUndefined)
         kwargs.setdefault("finalize", written)
         kwargs.setdefault("autoescape", False)
@@ -847,7 +856,9 @@ def render_value(template: jinja2.Template, *layers: Mapping[str, Any]) -> str:
 def describe(exc: BaseException) -> str:
     """A one-line reason for a failure inside a template, without the value that failed."""
     if isinstance(exc, RecursionError):
-        return "the template recurses without end"
+        # Python's limit stops it, whether or not it would end: the depth is the fault either way
+        return (f"the template recurses too deeply (past Python's limit of {sys.getrecursionlimit()} calls, "
+                "a macro or include calling itself without end, or nearly): make it shallower, e.g. a loop")
     if isinstance(exc, MemoryError):
         return ("a value grows larger than this computer's memory (MemoryError): build smaller values, "
                 "e.g. fewer or shorter items in a list or loop")

@@ -49,9 +49,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_check)
 
 
-def _load(args: argparse.Namespace, out: Output) -> tuple[Any, tuple[Host, ...]]:
+def _load(args: argparse.Namespace, out: Output, pick_up: bool = False) -> tuple[Any, tuple[Host, ...]]:
+    """`pick_up` (validate, check): with --limit, the robots pending for this version too, which
+    `apply` with the same --limit takes (render writes only the robots asked for)."""
     project = load_masked(args, out, args.release_version)
-    return project, inventory_targets(project, args.limit, out)
+    hosts = inventory_targets(project, args.limit, out)
+    if pick_up and args.limit is not None:
+        from rosdeploy.cli import pending as pending_cli
+        hosts = pending_cli.with_pending(project, hosts, out, doing="validating")
+    return project, hosts
 
 
 # ---------------------------------------------------------------- validate
@@ -59,7 +65,7 @@ def _load(args: argparse.Namespace, out: Output) -> tuple[Any, tuple[Host, ...]]
 def cmd_validate(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.project import validate
 
-    project, hosts = _load(args, out)
+    project, hosts = _load(args, out, pick_up=True)
     problems = validate(project, hosts)
     errors = [p for p in problems if p.severity == "error"]
     if out.as_json:
@@ -177,7 +183,7 @@ def _release_json(release: RenderedRelease, folder: Path) -> dict[str, Any]:
 def cmd_check(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.project import findings
 
-    project, hosts = _load(args, out)
+    project, hosts = _load(args, out, pick_up=True)
     problems = findings(project, hosts)
     errors = sum(p.severity == "error" for p in problems)
     if out.as_json:

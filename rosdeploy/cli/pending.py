@@ -10,15 +10,15 @@ from rosdeploy.output import Output, one_line
 from rosdeploy.results import FleetResult
 
 
-def with_pending(project: Any, hosts: Sequence[Host], out: Output) -> tuple[Host, ...]:
+def with_pending(project: Any, hosts: Sequence[Host], out: Output, doing: str = "applying to") -> tuple[Host, ...]:
     """The targets, plus the robots still pending for this fleet file and version (even when
-    --limit leaves them out): a plain `apply` picks them up."""
+    --limit leaves them out): a plain `apply` picks them up, so validate and check judge them too."""
     waiting = pending.for_version(_load(project.spec.path, out), project.spec.version)
     named = {h.name for h in hosts}
     extra = [h for h in project.targets(None) if h.name in waiting and h.name not in named]
     if extra:
-        out.warn(f"also applying to {len(extra)} robot(s) pending for {project.spec.version}: "
-                 + ", ".join(f"{h.name} ({waiting[h.name].outcome})" for h in extra))
+        out.warn(f"also {doing} {len(extra)} robot(s) pending for {project.spec.version}, which `apply` picks up "
+                 "whatever --limit says: " + ", ".join(f"{h.name} ({waiting[h.name].outcome})" for h in extra))
     return tuple(hosts) + tuple(extra)
 
 

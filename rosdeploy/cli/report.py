@@ -205,7 +205,8 @@ def summary(out: Output, result: FleetResult, folder: Path | None) -> None:
         counts[h.outcome] = counts.get(h.outcome, 0) + 1
     tally = ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
     style = "green" if result.ok else "red"
-    record = f"record: {folder}" if folder else "no run record: see the warning above"
+    # the folder comes from $ROSDEPLOY_RUNS_DIR, which may hold a newline: still one line
+    record = f"record: {one_line(str(folder))}" if folder else "no run record: see the warning above"
     out.line(out.paint(f"{result.command}: {tally} in {result.seconds:.1f}s", style) + f"  ({record})")
     if result.interrupted:
         # a second rollback would take the robots it finished one release further back

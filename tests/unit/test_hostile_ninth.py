@@ -7,11 +7,16 @@
 """
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import pytest
 import yaml
 
+from rosdeploy import pending
+from rosdeploy.cli import main, report
+from rosdeploy.output import Output
+from rosdeploy.results import FleetResult, HostResult
 from test_hostile import cli, edit, lab, refused_everywhere
 
 __all__ = ["lab"]   # the fixture: tests/unit/data/fleet copied, its vault password in place
@@ -119,3 +124,79 @@ def test_a_secret_named_as_a_variable_rosdeploy_sets_is_refused(capsys: pytest.C
         secrets[name] = secrets.pop(next(iter(secrets)))
     edit(lab, add)
     refused_everywhere(capsys, lab, f"services.bridge.secrets.{name}: {name} is set per robot by rosdeploy")
+
+
+# ------------------------------------------------------------------ 6. the controller's paths in templates
+
+def _template(lab: Path, text: str) -> None:
+    (lab / "templates").mkdir(exist_ok=True)
+    (lab / "templates" / "x.txt.j2").write_text(text)
+    edit(lab, lambda d: d.update(templates="templates"))
+
+
+def test_the_same_fleet_renders_the_same_release_from_any_folder(capsys: pytest.CaptureFixture, lab: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    # `{{ spec }}` wrote the fleet path as given on the command line: another folder, another
+    # release id, and a redeploy of every robot; `known_hosts: /x/${VAR}` carried the environment
+    monkeypatch.setenv("CANARY", "canary-5c1e")
+    (lab / "kh-canary-5c1e").write_text("")
+    _template(lab, "{{ spec }}\n{{ host }}\n")
+    edit(lab, lambda d: d.update(ssh={"known_hosts": str(lab / "kh-${CANARY}")}))
+    ids = []
+    for folder, fleet in ((lab.parent, lab / "fleet.yml"), (lab, Path("fleet.yml"))):
+        monkeypatch.chdir(folder)
+        out = lab.parent / f"out-{len(ids)}"
+        code = main(["render", str(fleet), "--vault-password-file", str(lab / "inventory" / ".vault-password"),
+                     "--out", str(out), "--limit", "r1"])
+        text = "".join(capsys.readouterr())
+        assert code == 0, text
+        written = (out / "r1" / "x.txt").read_text()
+        assert "canary" not in written and str(lab) not in written and "FleetSpec(project='lab'" in written
+        ids.append(text.split("r1", 1)[1].split()[0])
+    assert ids[0] == ids[1], ids
+
+
+@pytest.mark.parametrize("read", ["spec.path", "spec.inventory", "spec.known_hosts", "spec.templates",
+                                  "host.source", "host.key_file", "spec|attr('ssh_config')"])
+def test_a_template_reading_a_controller_path_is_refused(capsys: pytest.CaptureFixture, lab: Path, read: str) -> None:
+    _template(lab, f"{{{{ {read} }}}}\n")
+    refused_everywhere(capsys, lab, "x.txt.j2:1: robot 'r1': access to attribute")
+
+
+# ------------------------------------------------------------------ 7. the run record's folder in the summary
+
+def test_a_run_folder_with_a_newline_keeps_the_summary_on_one_line() -> None:
+    # ROSDEPLOY_RUNS_DIR=$'/tmp/p/nl\nx' split "apply: 1 unreachable in 0.6s (record: /tmp/p/nl" in two
+    stream = io.StringIO()
+    result = FleetResult("apply", (HostResult("r1", "unreachable", reason="no route"),), seconds=0.6)
+    report.summary(Output(stdout=stream, stderr=stream, color=False), result, Path("/tmp/p/nl\nx/20261125-1"))
+    last = stream.getvalue().rstrip("\n").splitlines()[-1]
+    assert last.startswith("apply: 1 unreachable in 0.6s") and "record: /tmp/p/nl\\nx/20261125-1)" in last, last
+
+
+# ------------------------------------------------------------------ 8. deep recursion is not "without end"
+
+@pytest.mark.parametrize("stop", ["n < 5000", "true"])
+def test_deep_recursion_is_said_to_be_too_deep(capsys: pytest.CaptureFixture, lab: Path, stop: str) -> None:
+    # a recursion 5,000 deep that ends was said to recurse "without end"
+    macro = f"{{% macro m(n) %}}{{% if {stop} %}}{{{{ m(n + 1) }}}}{{% endif %}}{{% endmacro %}}"
+    _template(lab, macro + "{{ m(0) }}\n")
+    refused_everywhere(capsys, lab, "x.txt.j2:1: robot 'r1': the template recurses too deeply (past Python's limit")
+
+
+# ------------------------------------------------------------------ 9. the robots apply picks up
+
+def test_validate_and_check_with_limit_judge_the_pending_robots_apply_would_take(
+        capsys: pytest.CaptureFixture, lab: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # `validate --limit r1` said OK; `apply --limit r1` also took r2, pending from a run before,
+    # and refused it: validating first with the same options did not predict the apply
+    monkeypatch.setenv("ROSDEPLOY_PENDING_DIR", str(lab.parent / "pending"))
+    hosts = lab / "inventory" / "hosts.yml"
+    hosts.write_text(hosts.read_text().replace("          ros_domain_id: 2\n", ""))
+    assert cli(capsys, lab, "validate", "--limit", "r1")[0] == 0
+    pending.save(str(lab / "fleet.yml"), pending.merged({}, [HostResult("r2", "unreachable", reason="no route")],
+                                                          "1.0.0", "run1"))
+    for command in ("validate", "check"):
+        code, text = cli(capsys, lab, command, "--limit", "r1")
+        assert code == 2 and "also validating 1 robot(s) pending for 1.0.0" in text and "r2 (unreachable)" in text
+        assert "'r2' declares no ros_domain_id" in text, (command, text)
