@@ -62,7 +62,7 @@ def become(host: Host, asked_password: str | None = None) -> Become:
     user = host.user or str(named or "")
     if user == "root":
         return Become("direct")
-    if str(v.get("ansible_become", "true")).lower() in ("false", "no", "0"):
+    if not _become_on(v.get("ansible_become", True)):
         who = "the SSH user" if read or not user else user
         return Become("", refused=f"ansible_become is false for {who}, who is not root: set "
                                   "ansible_become: true (and grant sudo), connect as root, or pass --no-host-changes")
@@ -76,6 +76,16 @@ def become(host: Host, asked_password: str | None = None) -> Become:
                                   "supported: use sudo")
     password = asked_password or v.get("ansible_become_password") or v.get("ansible_become_pass")
     return Become("sudo-S", str(password)) if password else Become("sudo-n")
+
+
+def _become_on(value: Any) -> bool:
+    """ansible_become as Ansible reads it (the inventory makes it a bool at load: hostvars.ANSIBLE_READ).
+    A value that is neither true nor false never gets past the load; here it does not become."""
+    from rosdeploy.inventory.hostvars import BadValue, ansible_bool
+    try:
+        return ansible_bool(value)
+    except BadValue:
+        return False
 
 
 def _read(v: Mapping[str, Any], name: str) -> tuple[Any, dict[str, str]]:

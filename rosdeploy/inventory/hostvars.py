@@ -6,12 +6,13 @@ import ipaddress
 import os
 import re
 import stat
+import unicodedata
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 from rosdeploy import suggest
 from rosdeploy.errors import Problem, shown
-from rosdeploy.fleet import REMOTE_PATH_RE, home_problem, known_hosts_problem, remote_root_too_long
+from rosdeploy.fleet import REMOTE_PATH_RE, home_problem, known_hosts_problem, normal_path, remote_root_too_long
 from rosdeploy.inventory.draft import Layer, Origin
 from rosdeploy.inventory.known import (ANSIBLE_VARS, FALSE, HEX4, MODE, NAME, NEAR_MISS_CUTOFF, SERIAL,
                                        SHELL_UNSAFE, SUBSYSTEM, SYMLINK, TRUE, UDEV_KEYS, UDEV_REQUIRED,
@@ -78,7 +79,7 @@ def host_fields(name: str, read: Callable[[str], Any], origins: Mapping[str, Ori
             take(prefixed, spec, False)
         elif short in origins:
             take(short, spec, True)
-    for var, spec in PREFIXED_ONLY.items():
+    for var, spec in (*PREFIXED_ONLY.items(), *ANSIBLE_READ.items()):
         if var in origins:
             take(var, spec, False)
     return fields, normalised, errors, warnings
@@ -89,6 +90,12 @@ def _foreign(host: str, var: str, value: Any, spec: Var, origin: Origin) -> Prob
                                   f"another tool's variable, ignored by rosdeploy; give rosdeploy its own as "
                                   f"{PREFIX}{var}",
                           severity="warning")
+
+
+def case_variant(names: Iterable[Any], var: str) -> str | None:
+    """A name in `names` that is `var` in another case (`ROS_DOMAIN_ID` for ros_domain_id), or None:
+    for an error about a missing var, which is likely there, misspelt."""
+    return next((name for name in names if isinstance(name, str) and name != var and name.lower() == var), None)
 
 
 def check_layer(layer: Layer) -> tuple[list[Problem], list[Problem]]:
@@ -171,6 +178,11 @@ def _refused(name: str, var: str, bad: BadValue, source: str | None) -> str:
 def _near_miss(name: str) -> str | None:
     if name in CONSUMED_VARS or name in ANSIBLE_VARS:
         return None
+    # `ROS_DOMAIN_ID` (the environment variable's spelling), `GPU`: difflib's ratio is low for
+    # another case, so a dict lookup finds them
+    same = _BY_LOWER.get(name.lower())
+    if same is not None:
+        return same
     near = _of_length(len(name))
     return suggest.closest(name, near, cutoff=NEAR_MISS_CUTOFF) if near else None
 
@@ -230,7 +242,8 @@ def _to_rate(value: Any) -> Any:
     return value
 
 
-def _to_bool(value: Any) -> bool:
+def ansible_bool(value: Any) -> bool:
+    """A boolean as Ansible's boolean() reads it; BadValue when it is neither true nor false."""
     if isinstance(value, bool):
         return value
     # Ansible's boolean(): INI writes `gpu=true` as a string, and the numbers 1 and 0 are true and false
@@ -272,10 +285,31 @@ def _to_address(value: Any) -> str:
     if len(address) > MAX_HOST_NAME:
         raise BadValue(f"{shown(address)} is longer than a host name can be ({MAX_HOST_NAME} characters): give "
                        "the robot's host name or IP address")
-    problem = _not_an_address(address) or _not_a_host_name(address)
+    problem = _not_an_address(address) or _no_host_name_characters(address) or _not_a_host_name(address)
     if problem:
         raise BadValue(f"{shown(address)} {problem}")
     return address
+
+
+def _no_host_name_characters(address: str) -> str | None:
+    """Why a name holds characters no resolver takes (`a,b`, `a%b`, `a=b`, Arabic-Indic digits), or None.
+    The idna codec passes them; a known_hosts line reads `a,b` as two names. An IP address (with
+    an IPv6 `%zone`) is checked by _is_ip; non-ASCII letters are IDNA names (bücher.example)."""
+    if _is_ip(address):
+        return None
+    bad = sorted({c for c in address if not _host_name_character(c)})
+    if not bad:
+        return None
+    return (f"holds {', '.join(repr(c) for c in bad)}: a host name or ssh config alias has letters, digits, "
+            "'-', '_' and '.' only (digits in ASCII, '%' only in an IPv6 zone: fe80::1%eth0); "
+            "give the robot's host name or IP address")
+
+
+def _host_name_character(c: str) -> bool:
+    if c.isascii():
+        return c.isalnum() or c in "-_."
+    # IDNA labels hold letters and combining marks; a non-ASCII digit is no digit to a resolver
+    return unicodedata.category(c)[0] in "LM"
 
 
 def _not_a_host_name(address: str) -> str | None:
@@ -319,6 +353,11 @@ def _to_user(value: Any) -> str:
         raise BadValue(f"{shown(user)} starts with '-', which ssh would read as an option; fix the user name")
     if len(user) > MAX_USER:
         raise BadValue(f"{shown(user)} is longer than a user name can be ({MAX_USER} characters); fix the user name")
+    if "/" in user or user in (".", ".."):
+        # no Linux user has such a name, and the home rosdeploy derives from it (/home/<user>, for
+        # logrotate) would be another folder: /home/../etc
+        raise BadValue(f"{shown(user)} is no user name: a user name holds no '/' and is not '.' or '..'; "
+                       "fix the user name")
     return user
 
 
@@ -361,6 +400,9 @@ def _to_remote_root(value: Any) -> str:
     if not isinstance(value, str) or not REMOTE_PATH_RE.fullmatch(value) or ".." in value.split("/"):
         raise BadValue(f"must be an absolute path or one under ~ on the robot, without '..' or shell "
                        f"metacharacters (e.g. /opt/rosdeploy or ~/rosdeploy), got {shown(value)}")
+    if value.startswith("/") and normal_path(value) == "/":    # `/.`, `/./`: as fleet._deploy_root refuses
+        raise BadValue(f"{shown(value)} is the robot's root folder: releases need a folder of their own, "
+                       "e.g. ~/rosdeploy or /opt/rosdeploy")
     too_long = remote_root_too_long(value)
     if too_long:
         raise BadValue(too_long)
@@ -418,7 +460,24 @@ def _device_path(path: Any, subpath: KeyPath) -> str:
     if not text.startswith("/") or parts[:1] != ["dev"] or ".." in parts or len(parts) < 2:
         raise BadValue(f"must be a device path under /dev on the robot (e.g. /dev/robot/lidar), not /dev itself, "
                        f"got {shown(text)}", subpath)
-    return "/" + "/".join(parts)
+    path = "/" + "/".join(parts)
+    _within_path_limits(path, "/dev/robot/lidar", subpath)
+    return path
+
+
+MAX_PATH = 4096        # Linux's PATH_MAX, in bytes
+MAX_PATH_NAME = 255    # NAME_MAX: each name in a path
+
+
+def _within_path_limits(path: str, example: str, subpath: KeyPath) -> None:
+    """Refuse a path Linux cannot take (ENAMETOOLONG when Docker or udev uses it), in the words
+    the fleet file's files.target bound uses."""
+    size = len(path.encode())
+    longest = max(len(name.encode()) for name in path.split("/"))
+    if size > MAX_PATH or longest > MAX_PATH_NAME:
+        unit = "characters" if path.isascii() else "bytes"
+        raise BadValue(f"a path of {size} {unit}: Linux allows {MAX_PATH}, and {MAX_PATH_NAME} for each name in "
+                       f"it; shorten it, e.g. {example}", subpath)
 
 
 def _to_udev(value: Any) -> tuple[UdevDevice, ...]:
@@ -449,7 +508,7 @@ def _udev_device(entry: Any, index: int) -> UdevDevice:
                              (index, "subsystem")),
         vendor=_udev_hex(entry["vendor"], (index, "vendor")),
         product=_udev_hex(entry["product"], (index, "product")),
-        serial=_udev_optional(entry, "serial", SERIAL, "a serial number (letters, digits, _.:/+-)", index),
+        serial=_udev_serial(entry, index),
         group=_udev_optional(entry, "group", UNIX_GROUP, "a Unix group name like dialout", index),
         mode=_udev_mode(entry.get("mode", "0660"), (index, "mode")),
     )
@@ -468,6 +527,19 @@ def _udev_optional(entry: Mapping[str, Any], key: str, pattern: re.Pattern[str],
     return None if value is None else _udev_text(value, pattern, what, (index, key))
 
 
+# A USB serial is at most 126 characters (its string descriptor is 255 bytes); 255 leaves room for other buses'.
+MAX_SERIAL = 255
+
+
+def _udev_serial(entry: Mapping[str, Any], index: int) -> str | None:
+    serial = _udev_optional(entry, "serial", SERIAL, "a serial number (letters, digits, _.:/+-)", index)
+    if serial is not None and len(serial) > MAX_SERIAL:
+        # no device reports it, so the rule would never match: the symlink would never appear
+        raise BadValue(f"a serial of {len(serial)} characters: no device reports one over {MAX_SERIAL} (a USB "
+                       "serial has at most 126); copy it from `udevadm info --attribute-walk`", (index, "serial"))
+    return serial
+
+
 def _udev_hex(value: Any, subpath: KeyPath) -> str:
     return _udev_text(value, HEX4, "4 hex digits as a string, e.g. \"0403\"", subpath).lower()
 
@@ -478,6 +550,7 @@ def _udev_symlink(value: Any, subpath: KeyPath) -> str:
     link = _udev_text(value, SYMLINK, "a path relative to /dev, e.g. robot/lidar", subpath)
     if ".." in link.split("/"):
         raise BadValue(f"must stay inside /dev, got {shown(link)}", subpath)
+    _within_path_limits("/dev/" + link, "robot/lidar", subpath)
     return link
 
 
@@ -515,7 +588,7 @@ OWN_VARS: dict[str, Var] = {
     "ros_network": Var("network", _to_network, lambda v: isinstance(v, str), "network name (a string)"),
     "devices": Var("devices", _to_devices, lambda v: isinstance(v, Mapping),
                    "devices map (logical name: /dev/... path)"),
-    "gpu": Var("gpu", _to_bool, _is_bool, "gpu flag (true or false)"),
+    "gpu": Var("gpu", ansible_bool, _is_bool, "gpu flag (true or false)"),
     "udev": Var("udev", _to_udev, _is_udev, "udev list (entries with symlink, subsystem, vendor, product)"),
     **{name: Var(None, checked_var(name), is_gate_shaped, what)   # ready, window
        for name, what in GATE_VARS.items()},
@@ -529,5 +602,9 @@ PREFIXED_ONLY: dict[str, Var] = {
     "rosdeploy_images_via": Var(None, _to_route),          # docs/images.md
     "rosdeploy_images_max_rate": Var(None, _to_rate),
 }
+# Ansible's own vars rosdeploy reads (hostchanges.become), checked and made a bool here: a
+# string reader elsewhere took `off`, `n`, `f` and 0.0 for true, and would have used sudo.
+ANSIBLE_READ: dict[str, Var] = {"ansible_become": Var(None, ansible_bool)}
 PREFIXED_VARS = frozenset({*(PREFIX + name for name in OWN_VARS), *PREFIXED_ONLY})
 CONSUMED_VARS = (*OWN_VARS, *PREFIXED_VARS, *(var for names in CONNECTION.values() for var in names))
+_BY_LOWER = {var.lower(): var for var in CONSUMED_VARS}
