@@ -965,9 +965,22 @@ def _compose_extra(r: Reader, kp: KeyPath, value: Any) -> Any:
         raise Invalid(f"must be a mapping of compose service keys, e.g. {{cap_add: [SYS_NICE]}}; got {_kind(value)}")
     for key in value:
         if key in MANAGED_COMPOSE:
-            r.error(kp + (key,), f"`{key}` is rendered by rosdeploy: set it with the fleet key "
-                                 f"`{MANAGED_COMPOSE[key]}` instead")
+            r.error(kp + (key,), _NOT_PASSED.get(key) or f"`{key}` is rendered by rosdeploy: set it with the fleet "
+                                                          f"key `{MANAGED_COMPOSE[key]}` instead")
     return value
+
+
+# MANAGED_COMPOSE keys with no fleet key to name: why each is refused, and what to do
+_NOT_PASSED = {
+    "volumes_from": "`volumes_from` is refused: it mounts another container's folders, which `check` never sees; "
+                    "mount the robot's folders with the fleet key `volumes`",
+    "extends": "`extends` is refused: it brings in a service from a compose file `check` never sees; write the "
+               "service's keys in the fleet file",
+    "container_name": "`container_name` is refused: a fixed name cannot exist twice while releases switch "
+                      "(containers are named by project and service); remove it",
+    "labels": "`labels` is rendered by rosdeploy (the project, service and version labels it reads back on the "
+              "robot); remove it",
+}
 
 
 # ------------------------------------------- issue 18: refusals (new converters)
@@ -1080,10 +1093,36 @@ def home_problem(value: Any) -> str | None:
 def _fleet_var(r: Reader, kp: KeyPath, value: Any) -> Any:
     """A template variable of `vars:`, as written; the ones rosdeploy itself reads are checked here
     (the DDS and logrotate tunables per robot, in render.py: the inventory may replace them)."""
-    problem = home_problem(value) if kp[-1] == "rosdeploy_home" else None
+    problem = home_problem(value) if kp[-1] == "rosdeploy_home" else _inventory_only(str(kp[-1]))
     if problem:
         raise Invalid(problem)
     return value
+
+
+FLEET_READ_VARS = ("rosdeploy_home",)     # the one rosdeploy_ name render.py takes from `vars:` too
+# Per-robot names that have a fleet key of their own, which is where a fleet-wide value goes
+_FLEET_KEY_FOR = {"rosdeploy_deploy_root": "deploy_root", "ready": "ready", "rosdeploy_ready": "ready",
+                  "window": "window", "rosdeploy_window": "window"}
+
+
+def _inventory_only(name: str) -> str | None:
+    """Why `name` is no fleet `vars:` entry, or None: rosdeploy reads its own per-robot vars and Ansible's
+    from the inventory only (inventory/hostvars.py), so here the value would be ignored without a word."""
+    from rosdeploy.inventory.hostvars import OWN_VARS, PREFIX, PREFIXED_VARS  # it imports this module
+    taken = sorted({*PREFIXED_VARS, *FLEET_READ_VARS})
+    if name.startswith(PREFIX) and name not in taken:
+        hint = suggest(name, taken)
+        return (f"unknown rosdeploy variable {shown(name)}: "
+                + (f"did you mean `{hint[0]}`?" if hint else f"known: {', '.join(taken)}")
+                + " (the rosdeploy_ prefix is rosdeploy's own)")
+    if name not in PREFIXED_VARS and name not in OWN_VARS and not name.startswith("ansible_"):
+        return None
+    where = "the inventory (group_vars/all.yml for every robot, or the robot's host vars)"
+    if name in _FLEET_KEY_FOR:
+        where = f"the fleet file's top-level key `{_FLEET_KEY_FOR[name]}:` (every robot), or " + where
+    whose = "Ansible's per-robot variable, which rosdeploy takes" if name.startswith("ansible_") else \
+        "rosdeploy's per-robot variable, which it takes"
+    return f"{name} is {whose} from the inventory only, so here it would be ignored: set it in {where}"
 
 
 def _compose_passthrough(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -1312,6 +1351,7 @@ def _check_services(r: Reader, top: dict) -> None:
                                              "without profiles")
     _check_gate_can_pass(r, health)
     _check_cycles(r, services)
+    _check_port_clashes(r, services)
     _check_file_refs(r, services, top.get("files"))
 
 
@@ -1412,6 +1452,16 @@ def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]
             r.error(where + ("links", i), "a service cannot link to itself (Compose refuses the cycle): remove it")
         elif target not in names:
             r.error(where + ("links", i), f"no service is named `{target}`{_did_you_mean(target, names)}")
+    for key in ("ipc", "pid"):
+        shared = extra.get(key)
+        if not (isinstance(shared, str) and shared.startswith("service:")):
+            continue
+        target = shared[len("service:"):]
+        if target == kp[-1]:
+            r.error(where + (key,), f"a service cannot share its own {key} namespace (Compose refuses the cycle): "
+                                    "remove it")
+        elif target not in names:    # Compose refuses the file, as for links
+            r.error(where + (key,), f"no service is named `{target}`{_did_you_mean(target, names)}")
 
 
 # What Docker takes on Linux where the Compose schema allows any string (go-units' ulimits, with
@@ -1492,8 +1542,19 @@ def _check_compose_formats(r: Reader, where: KeyPath, extra: dict) -> None:
             r.error(where + (key,), f"{shown(value)}: Compose v2 reads {key} as a whole number of microseconds; "
                                     "write it so, e.g. 950000")
     for i, port in enumerate(extra["ports"] if isinstance(extra.get("ports"), list) else []):
+        problem = short_port_problem(port) if isinstance(port, str) else None
         if any(n > 65535 for n in _port_numbers(port)):
             r.error(where + ("ports", i), f"{shown(port)}: a port number is at most 65535")
+        elif problem:
+            r.error(where + ("ports", i), f"{shown(port)}: {problem} (Compose refuses it)")
+    for i, port in enumerate(extra["expose"] if isinstance(extra.get("expose"), list) else []):
+        problem = _port_range_problem(str(port).split("/", 1)[0].strip(), "port")
+        if problem:    # dockerd's verifyContainerSettings: "invalid port specification"
+            r.error(where + ("expose", i), f"{shown(port)}: {problem} (Docker refuses it)")
+    _check_extra_hosts(r, where + ("extra_hosts",), extra.get("extra_hosts"))
+    cpuset = extra.get("cpuset")
+    if isinstance(cpuset, str) and cpuset and not _cpu_list_ok(cpuset):     # "" sets none
+        r.error(where + ("cpuset",), f"{shown(cpuset)} is not a list of CPUs: e.g. 0-3 or 0,2 (Docker refuses it)")
     blkio = extra.get("blkio_config")
     for key, limits in (blkio.items() if isinstance(blkio, dict) else []):
         for i, limit in enumerate(limits if isinstance(limits, list) else []):
@@ -1504,6 +1565,98 @@ def _check_compose_formats(r: Reader, where: KeyPath, extra: dict) -> None:
 
 
 _ASCII_DIGITS = re.compile(r"[0-9]+")
+PORT_PROTOCOLS = ("tcp", "udp", "sctp")
+
+
+def short_port_problem(port: str) -> str | None:
+    """Why Compose v2 refuses a short-syntax `ports:` entry `[IP:][HOST[-HOST]:]CONTAINER[-CONTAINER][/PROTO]`,
+    or None: go-connections' nat.ParsePortSpec, as compose-go calls it (v1 refuses fewer of them)."""
+    spec, _, proto = port.partition("/")     # Go trims no space anywhere here: " 80" is refused
+    if proto and proto.lower() not in PORT_PROTOCOLS:
+        return f"{shown(proto)} is not a protocol: tcp, udp or sctp"
+    ip, host, container = _port_parts(spec)
+    if ip and _go_ip(ip) is None:
+        return f"{shown(ip)} is not an IP address"
+    problem = _port_range_problem(container, "container port") or (host and _port_range_problem(host, "host port"))
+    if problem:
+        return problem
+    if _PORT_PART.fullmatch(container).group(1).lstrip("0") == "":   # type: ignore[union-attr]
+        return "the container port is missing (0)"
+    ranges = [_range_size(p) for p in (host, container) if p]
+    if len(ranges) == 2 and ranges[1] > 1 and ranges[0] != ranges[1]:
+        return f"host ports {host} and container ports {container} are ranges of different lengths"
+    return None
+
+
+def _port_parts(spec: str) -> tuple[str, str, str]:
+    """(ip, host, container) as nat's splitParts cuts them: the IP is all before the last two `:`s."""
+    parts = spec.split(":")
+    if len(parts) == 1:
+        return "", "", parts[0]
+    if len(parts) == 2:
+        return "", parts[0], parts[1]
+    ip = ":".join(parts[:-2])
+    return (ip[1:-1] if ip.startswith("[") and ip.endswith("]") else ip), parts[-2], parts[-1]
+
+
+def _go_ip(text: str) -> Any:
+    """The address Go's net.ParseIP reads, or None: no zone (`%eth0`), no leading zeros (Python's rule too)."""
+    import ipaddress
+    try:
+        return None if "%" in text else ipaddress.ip_address(text)
+    except ValueError:
+        return None
+
+
+def _port_range_problem(text: str, what: str) -> str | None:
+    """nat.ParsePortRange: a port or a low-high range, each 16 bits (above 65535 is reported apart)."""
+    found = _PORT_PART.fullmatch(text)
+    if not found:
+        return f"{shown(text)} is not a {what} (a number or a range like 8000-8010)"
+    low, high = (int(n[:7]) for n in (found.group(1), found.group(2) or found.group(1)))
+    if max(low, high) > 65535:
+        return f"a {what} is at most 65535"
+    if high < low:
+        return f"the {what} range {text} runs backwards: write the lower port first"
+    return None
+
+
+def _range_size(text: str) -> int:
+    low, _, high = text.partition("-")
+    return int(high or low) - int(low) + 1
+
+
+def _check_extra_hosts(r: Reader, kp: KeyPath, hosts: Any) -> None:
+    """Each entry maps a name to an IP address (or Docker's `host-gateway`): Compose v2 refuses an entry
+    without one, and dockerd's ValidateExtraHost any address it cannot parse, when it starts the container."""
+    if isinstance(hosts, dict):
+        entries = [(name, str(name), "" if ip is None else str(ip)) for name, ip in hosts.items()]
+    elif isinstance(hosts, list):
+        entries = [(i, *_host_entry(str(e))) for i, e in enumerate(hosts)]
+    else:
+        return
+    for at, name, ip in entries:
+        ip = ip.strip()
+        ip = ip[1:-1] if ip.startswith("[") and ip.endswith("]") else ip
+        if ip != "host-gateway" and _go_ip(ip) is None:
+            given = f"to {shown(ip)}, which is no IP address" if ip else "to no IP address"
+            r.error(kp + (at,), f"{shown(name)} maps {given}: write NAME:IP, e.g. robot-base:10.0.0.2 (or "
+                                "NAME:host-gateway)")
+
+
+def _host_entry(entry: str) -> tuple[str, str]:
+    """(name, address) of `NAME:IP` or `NAME=IP` (Compose's two spellings; an IPv6 address holds `:`s)."""
+    cut = min((i for i in (entry.find("="), entry.find(":")) if i >= 0), default=-1)
+    return (entry, "") if cut < 0 else (entry[:cut], entry[cut + 1:])
+
+
+def _cpu_list_ok(text: str) -> bool:
+    """dockerd's parsers.ParseUintList: `0-3,5`, each range low to high."""
+    for part in text.split(","):
+        found = _PORT_PART.fullmatch(part)
+        if not found or (found.group(2) and int(found.group(2)[:7]) < int(found.group(1)[:7])):
+            return False
+    return True
 
 
 def _port_numbers(port: Any) -> list[int]:
@@ -1520,6 +1673,70 @@ def _port_numbers(port: Any) -> list[int]:
         if found:    # a number of more than 6 digits is too big; int() of 5,000 digits raises
             numbers += [int(n) if len(n) <= 6 else 10**6 for n in found.groups() if n]
     return numbers
+
+
+# One published host port: (service, index in its `ports`, protocol, host IP ("" is every address), low, high)
+Published = tuple[str, int, str, str, int, int]
+
+
+def _check_port_clashes(r: Reader, services: dict) -> None:
+    """Two services publishing one host port (bridge networking): Compose takes the file, and the second
+    container fails at `up` ("port is already allocated"). Services with profiles never start in a deploy."""
+    if r.raw(("ros", "network_mode")) != "bridge":
+        return    # on the host's network `ports` are not published at all
+    seen: list[Published] = []
+    for name, svc in services.items():
+        if not isinstance(svc, dict) or not isinstance(svc.get("compose"), dict) or _profiled(r, name):
+            continue
+        extra = _literal(svc["compose"]) if svc.get("compose_interpolate") is True else svc["compose"]
+        ports = extra.get("ports")
+        mine = [p for i, port in enumerate(ports if isinstance(ports, list) else [])
+                if (p := _published(name, i, port))]
+        for port in mine:
+            first = next((other for other in seen if _same_host_port(port, other)), None)
+            if first:
+                r.error(("services", name, "compose", "ports", port[1]),
+                        f"host port {_port_text(port)} is already published by service `{first[0]}` "
+                        f"(its compose.ports[{first[1]}]): the second container would not start (\"port is "
+                        "already allocated\"); publish another host port")
+        seen += mine
+
+
+def _published(service: str, i: int, port: Any) -> Published | None:
+    """The host ports a well-formed `ports:` entry publishes, or None (none given: Docker picks a free one)."""
+    if isinstance(port, dict):
+        host, ip, proto = port.get("published"), str(port.get("host_ip") or ""), str(port.get("protocol") or "tcp")
+    elif isinstance(port, str) and not short_port_problem(port) and not any(n > 65535 for n in _port_numbers(port)):
+        spec, _, proto = port.strip().partition("/")
+        ip, host, _ = _port_parts(spec)
+    else:
+        return None
+    found = _PORT_PART.fullmatch(str(host).strip()) if isinstance(host, (str, int)) else None
+    if not found or isinstance(host, bool):
+        return None
+    low = int(found.group(1)[:7])
+    high = int((found.group(2) or found.group(1))[:7])
+    return service, i, (proto or "tcp").lower(), ip, low, high
+
+
+def _same_host_port(a: Published, b: Published) -> bool:
+    """One protocol, overlapping ports and addresses: an unspecified address (none, 0.0.0.0, ::) takes
+    the port on every address of its family, where Linux refuses a second socket on a specific one."""
+    if a[2] != b[2] or a[5] < b[4] or b[5] < a[4]:
+        return False
+    if not a[3] or not b[3]:     # no address given: 0.0.0.0 and [::] both
+        return True
+    first, second = _go_ip(a[3]), _go_ip(b[3])
+    if first is None or second is None:     # not an address (the long form's host_ip is not checked here)
+        return a[3] == b[3]
+    if first.version != second.version:
+        return False
+    return first == second or first.is_unspecified or second.is_unspecified
+
+
+def _port_text(port: Published) -> str:
+    ports = str(port[4]) if port[4] == port[5] else f"{port[4]}-{port[5]}"
+    return f"{port[3]}:{ports}/{port[2]}" if port[3] else f"{ports}/{port[2]}"
 
 
 def _check_ulimit(r: Reader, kp: KeyPath, soft: int, hard: int) -> None:

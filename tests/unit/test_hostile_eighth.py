@@ -130,7 +130,7 @@ def test_a_line_separator_in_a_compose_pass_through_value_reaches_compose_as_wri
         capsys: pytest.CaptureFixture, lab: Path, separator: str) -> None:
     # PyYAML wrote it raw in a quoted scalar, and YAML folded it into a space: two extra_hosts became one
     from test_hostile import edit
-    hosts = [f"a:1.2.3.4{separator}b:5.6.7.8", "c:9.9.9.9"]
+    hosts = [f"a{separator}b:1.2.3.4", "c:9.9.9.9"]
     edit(lab, lambda d: d["services"]["driver"].update(compose={"extra_hosts": hosts, "domainname": f"x{separator}y"}))
     code, text = cli(capsys, lab, "render")
     assert code == 0, text

@@ -200,3 +200,20 @@ def test_validate_and_check_with_limit_judge_the_pending_robots_apply_would_take
         code, text = cli(capsys, lab, command, "--limit", "r1")
         assert code == 2 and "also validating 1 robot(s) pending for 1.0.0" in text and "r2 (unreachable)" in text
         assert "'r2' declares no ros_domain_id" in text, (command, text)
+
+
+# ------------------------------------------------------------------ 10. compose keys with no fleet key to name
+
+@pytest.mark.parametrize("key, value, words", [
+    ("extends", {"file": "/opt/x.yml", "service": "x"}, "`extends` is refused: it brings in a service from a compose "
+                                                        "file `check` never sees"),
+    ("volumes_from", ["driver"], "`volumes_from` is refused: it mounts another container's folders"),
+    ("container_name", "fixed", "`container_name` is refused: a fixed name cannot exist twice"),
+    ("labels", {"a": "b"}, "`labels` is rendered by rosdeploy (the project, service and version labels"),
+])
+def test_a_refused_compose_key_says_why_in_plain_words(capsys: pytest.CaptureFixture, lab: Path, key: str,
+                                                       value: object, words: str) -> None:
+    # it said "set it with the fleet key `the service's own keys (what runs is what the fleet file says)`"
+    edit(lab, lambda d: d["services"]["bridge"].update(compose={key: value}))
+    refused_everywhere(capsys, lab, f"services.bridge.compose.{key}: {words}")
+    assert "set it with the fleet key" not in cli(capsys, lab, "validate")[1]
