@@ -29,7 +29,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 from rosdeploy import yamlsrc
 from rosdeploy.errors import InputError, Problem, shown
-from rosdeploy.fleet import problem_at, size_bytes
+from rosdeploy.fleet import _HOST_NET_SYSCTLS, _IPC_SYSCTLS, _sysctl_names, problem_at, size_bytes
 from rosdeploy.inventory.hostvars import PREFIX
 from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
 from rosdeploy.output import LONG_SECRET
@@ -80,6 +80,32 @@ class Target:
     def services(self) -> Mapping[str, Any]:
         services = (self.compose or {}).get("services")
         return services if isinstance(services, dict) else {}
+
+    @functools.cached_property    # per robot: docker-socket-mounted and mount-system-writable share them
+    def mounts(self) -> dict[str, tuple[tuple[str, str, bool], ...]]:
+        """Service name -> its mounts of robot paths, as _robot_mounts finds them (filled as asked)."""
+        return {}
+
+    @functools.cached_property
+    def folder_vars(self) -> tuple[str, str]:
+        """The robot's rosdeploy_home and rosdeploy_deploy_root ("" when unset): read once, not per rule."""
+        return (str(self.host.vars.get("rosdeploy_home") or ""), str(self.host.vars.get("rosdeploy_deploy_root") or ""))
+
+    @functools.cached_property    # frozen, and asked once per service
+    def bind_volumes(self) -> Mapping[str, tuple[str, bool]]:
+        """Top-level volumes the local driver binds from a robot path (`driver_opts: {type: none,
+        o: bind, device: /}`), as name -> (device, read-only): a bind mount by another name."""
+        volumes = (self.compose or {}).get("volumes")
+        found: dict[str, tuple[str, bool]] = {}
+        for name, volume in (volumes.items() if isinstance(volumes, dict) else ()):
+            if not isinstance(volume, dict):
+                continue
+            opts = _dig(volume, "driver_opts")
+            options = str(opts.get("o", "")).replace(" ", "").split(",")
+            if volume.get("driver", "local") in ("local", None) and ("bind" in options or "rbind" in options) and \
+                    opts.get("device"):
+                found[str(name)] = (str(opts.get("device", "")), "ro" in options)
+        return found
 
 
 @dataclass(frozen=True)
@@ -489,13 +515,31 @@ def _host_changes_no_root(ctx: Context, host: Host) -> Iterator[Problem]:
 
 # ------------------------------------------------------- a robot's release
 
-@rule("compose-invalid", "error", "release", "The rendered compose.yml is valid YAML with a `services` mapping.",
+@rule("compose-invalid", "error", "release",
+      "The rendered compose.yml is valid YAML with a `services` mapping, brings in nothing `check` cannot see "
+      "(`include`, `extends` from a file, `volumes_from`, `env_file`, a `container:NAME` namespace) and sets "
+      "only namespaced sysctls.",
       "Fix the compose template (the fleet file's `templates:` folder, or report a bug in the built-in one).")
 def _compose_invalid(ctx: Context, t: Target) -> Iterator[Problem]:
     if t.compose_error or not isinstance((t.compose or {}).get("services"), dict):
         why = t.compose_error or "it has no `services:` mapping"
         yield problem_at(ctx.spec, ("templates",) if ctx.spec.templates else (), (
             f"the compose.yml rendered for {ROBOTS} is not a valid compose file ({why}): fix the compose template"))
+        return
+    # The fleet's `compose:` refuses these at load (fleet.MANAGED_COMPOSE, _check_compose_conflicts);
+    # a user's compose template renders them past it, so the rendered file is judged the same way.
+    if "include" in (t.compose or {}):
+        yield from _brings_in(ctx, t)
+    for name, svc in t.services.items():
+        # the built-in template's services have none of these keys: skip them at the cost of a lookup
+        if isinstance(svc, dict) and not (_SUSPECT_KEYS.isdisjoint(svc) and
+                                          not str(svc.get("network_mode", "")).startswith("container:")):
+            yield from _brought_in(ctx, name, svc)
+            for keypath, message in _refused_sysctls(name, svc):
+                yield _service_problem(ctx.spec, name, keypath, message)
+
+
+_SUSPECT_KEYS = frozenset({"extends", "volumes_from", "env_file", "pid", "ipc", "sysctls"})
 
 
 @rule("dds-peers-missing", "error", "release", "Off host networking, the DDS config lists explicit unicast peers.",
@@ -599,6 +643,54 @@ def _compose_ref_undefined(ctx: Context, t: Target, name: str, svc: dict) -> Fin
                     f"define at the top level (compose would refuse the file): use {instead} instead")
 
 
+def _brings_in(ctx: Context, t: Target) -> Iterator[Problem]:
+    """A top-level `include:`: compose would merge in a file from the robot's disk, which no rule
+    checked (it can hold `privileged: true`, `/:/host`)."""
+    if (t.compose or {}).get("include"):
+        where = ("templates",) if ctx.spec.templates else ("services",)
+        yield _service_problem(ctx.spec, "", where, (
+            f"the compose.yml rendered for {ROBOTS} has a top-level `include:`: compose would merge in a compose "
+            "file from the robot's disk, which `check` never sees; write its services in the template itself"))
+
+
+def _brought_in(ctx: Context, name: str, svc: Mapping[str, Any]) -> Iterator[Problem]:
+    for key, what in _outside_keys(svc):
+        yield _service_problem(ctx.spec, name, ("services", name, "compose", key), (
+            f"service {name} of {ROBOTS} has `{key}` in the rendered compose.yml: it brings in {what}, which "
+            "`check` never sees; write the service's own keys instead"))
+
+
+def _outside_keys(svc: Mapping[str, Any]) -> Iterator[tuple[str, str]]:
+    """(compose key, what it brings in) of a service's keys that reach outside the compose file."""
+    extends = svc.get("extends")
+    if isinstance(extends, dict) and extends.get("file"):
+        yield "extends", f"a service from another compose file ({shown(str(extends['file']))})"
+    if svc.get("volumes_from"):
+        yield "volumes_from", "another container's mounts"
+    if svc.get("env_file"):
+        yield "env_file", "environment from a file on the robot (set `environment:` or `secrets:`)"
+    for key in ("pid", "ipc", "network_mode"):
+        if str(svc.get(key, "")).startswith("container:"):
+            yield key, f"the namespace of a container outside the project ({shown(str(svc[key]))})"
+
+
+def _refused_sysctls(name: str, svc: Mapping[str, Any]) -> Finding:
+    """Sysctls runc or Docker refuse for this service, as fleet._check_compose_conflicts judges the
+    fleet's `compose: {sysctls}`: else every robot fails at `up`."""
+    host_net = svc.get("network_mode") == "host"
+    for at, sysctl in _sysctl_names(svc.get("sysctls")):
+        if not sysctl.startswith(_IPC_SYSCTLS + _HOST_NET_SYSCTLS):
+            why = "is not a namespaced sysctl: runc refuses to set the robot's kernel from a container"
+        elif sysctl.startswith(_HOST_NET_SYSCTLS) and host_net:
+            why = "needs the container's own network namespace: Docker refuses it on host networking"
+        elif sysctl.startswith(_IPC_SYSCTLS) and svc.get("ipc") == "host":
+            why = "needs the container's own IPC namespace: Docker refuses it with `ipc: host`"
+        else:
+            continue
+        yield ("services", name, "compose", "sysctls", at), (
+            f"service {name} of {ROBOTS} sets sysctl {shown(sysctl)}, which {why}; set it on the robot")
+
+
 @rule("log-rotation-missing", "error", "service", "Every service's logs rotate (json-file max-size and max-file).",
       "Keep `logging: {driver: json-file, options: {max-size, max-file}}` in the compose template.")
 def _log_rotation(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
@@ -682,11 +774,15 @@ def _root_device_rule(rule: str) -> bool:
       "`allow_privileged: true` if it is on purpose.")
 def _docker_socket(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
     declared = ctx.service(name)
-    sources = sorted(_mount_source(v) for v in _as_list(svc.get("volumes")))
-    socket = next((s for s in sources if _holds_engine_socket(s)), None)
-    if socket and not (declared and declared.allow_privileged):
+    if declared and declared.allow_privileged:
+        return
+    mounts = sorted((path, written) for written, path, _ in _service_mounts(ctx, t, name, svc))
+    socket = next(((path, written) for path, written in mounts if _holds_engine_socket(path)), None)
+    if socket:
+        path = socket[0]
         yield ("services", name, "volumes"), (
-            f"service {name} mounts {socket}{'' if socket.endswith('.sock') else ', which holds the engine socket'}"
+            f"service {name} mounts {_shown_mount(*socket)}"
+            f"{'' if path.endswith('.sock') else ', which holds the engine socket'}"
             ": whoever controls the container controls the robot's container engine, which is root on the robot; "
             "remove the mount, or set `allow_privileged: true` to say it is on purpose")
 
@@ -695,6 +791,7 @@ _ENGINE_SOCKETS = ("/var/run/docker.sock", "/run/docker.sock", "/run/containerd/
                    "/var/run/containerd/containerd.sock", "/run/podman/podman.sock", "/var/run/podman/podman.sock")
 
 
+@functools.lru_cache(maxsize=1024)    # pure, and a fleet's robots share their mounts: once per path
 def _holds_engine_socket(source: str) -> bool:
     """An engine's socket, or a directory it lies in (`/var/run:/hostrun` reaches it as well)."""
     if source.rstrip("/").rsplit("/", 1)[-1] in ("docker.sock", "containerd.sock", "podman.sock"):
@@ -764,13 +861,17 @@ def _normal_path(path: str) -> str:
       "Mount it read-only (`:ro`), or only the folder the node needs; add `allow_privileged: true` if it is on "
       "purpose.")
 def _mount_system_writable(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
-    for entry, source in _unwaived_sources(ctx, name, svc, "volumes"):
-        folder = _system_folder(source)
+    declared = ctx.service(name)
+    if declared and declared.allow_privileged:
+        return
+    robot = _robot_of(ctx.spec, t)
+    for written, source, writable in _service_mounts(ctx, t, name, svc):
+        folder = _root_folder(source, robot) if writable else ""
         # the engine's socket folders (/, /var, /run) are docker-socket-mounted's finding
-        if folder and _bind_writable(entry) and not _holds_engine_socket(source):
+        if folder and not _holds_engine_socket(source):
             yield ("services", name, "volumes"), (
-                f"service {name} mounts {source} writable{_holds(source, folder)}: a container that writes "
-                f"{folder} is root on the robot; mount it `:ro`, or set "
+                f"service {name} mounts {_shown_mount(source, written)} writable{_holds(source, folder)}: a "
+                f"container that writes {folder} is root on the robot; mount it `:ro`, or set "
                 "`allow_privileged: true` to say it is on purpose")
 
 
@@ -779,28 +880,147 @@ def _mount_system_writable(ctx: Context, t: Target, name: str, svc: dict) -> Fin
 # runs, the kernel's own settings (/proc/sys/kernel/core_pattern and /sys/kernel/uevent_helper run a
 # program as root), and the engines' data (a container's files, its config). Of /sys, only the
 # kernel's settings, modules, firmware and cgroups: /sys/class/gpio or /sys/bus/iio are the robot's
-# hardware, which robot containers do mount.
+# hardware, which robot containers do mount. Of /home, the folder itself, a user's home and its
+# dot files (~/.ssh/authorized_keys, ~/.bashrc: the deploy user runs docker, so is root): a data
+# folder in a home (/home/ros/maps) is what robot containers mount.
 _SYSTEM_FOLDERS = ("/etc", "/root", "/boot", "/proc", "/sys/kernel", "/sys/module", "/sys/fs", "/sys/firmware",
                    "/usr", "/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32", "/var/lib/docker",
-                   "/var/lib/containerd", "/var/spool/cron")
+                   "/var/lib/containerd", "/var/spool/cron", "/home")
 # Files of /etc that robot containers commonly mount, and whose content gives nobody root
 _HARMLESS = frozenset({"/etc/localtime", "/etc/timezone", "/etc/machine-id", "/etc/hostname", "/etc/os-release",
                        "/etc/lsb-release", "/etc/nv_tegra_release"})
+
+
+@dataclass(frozen=True)
+class _Robot:
+    """The robot's folders a compose mount source is read against: compose takes `~` for the SSH
+    user's home and a relative path from the release folder (<deploy_root>/<project>/releases/<id>)."""
+
+    home: str       # the SSH user's home, as render reads it for logrotate (rosdeploy_home, else a guess)
+    root: str       # the deploy root, absolute
+    project: str    # <root>/<project>: its logs and store are the release's own
+    release: str    # <project>/releases/<id>, with an id no other release has
+
+
+def _robot_of(spec: FleetSpec, t: Target) -> _Robot:
+    home, root = t.folder_vars
+    return _robot_folders(root or spec.deploy_root, home or str(spec.vars.get("rosdeploy_home") or ""), t.host.user,
+                          spec.project)
+
+
+@functools.lru_cache(maxsize=256)     # pure, and a fleet's robots share their user and deploy root
+def _robot_folders(root: str, home: str, user: str | None, project: str) -> _Robot:
+    # Without ansible_user the SSH user is ssh's own choice: a home of its own, not root's, lest
+    # `~/maps` read as a folder in /root (a system folder).
+    home = _normal_path("/" + (home or ("root" if user == "root" else f"home/{user or '<ssh user>'}")).lstrip("/"))
+    if root == "~" or root.startswith("~/"):
+        root = home + root[1:]
+    root = _normal_path(root)
+    return _Robot(home, root, f"{root}/{project}", f"{root}/{project}/releases/<this release>")
+
+
+def _service_mounts(ctx: Context, t: Target, name: str, svc: dict) -> tuple[tuple[str, str, bool], ...]:
+    found = t.mounts.get(name)
+    if found is None:
+        found = t.mounts[name] = tuple(_robot_mounts(ctx.spec, t, svc))
+    return found
+
+
+def _robot_mounts(spec: FleetSpec, t: Target, svc: dict) -> Iterator[tuple[str, str, bool]]:
+    """(source as written, path on the robot, writable) of each of a service's volumes that takes a
+    robot path: a bind mount (absolute, under `~`, or relative to the release folder) or a named
+    volume the local driver binds (its `device`). Other named volumes are the engine's own."""
+    robot = _robot_of(spec, t)
+    binds = t.bind_volumes
+    for entry in _as_list(svc.get("volumes")):
+        found = _short_mount(entry, robot.home, robot.release) if isinstance(entry, str) else None
+        if found:
+            yield found
+            continue
+        written = _mount_source(entry)
+        if written.startswith(("/", ".", "~")) or (isinstance(entry, dict) and entry.get("type") == "bind"):
+            yield written, _robot_path(written, robot.home, robot.release), _bind_writable(entry)
+        elif written in binds:
+            device, read_only = binds[written]
+            yield written, _robot_path(device, robot.home, robot.release), not read_only and _writable(entry)
+
+
+@functools.lru_cache(maxsize=4096)    # pure, and a fleet's robots share their mounts: once per entry
+def _short_mount(entry: str, home: str, release: str) -> tuple[str, str, bool] | None:
+    """_robot_mounts' answer for a short-syntax bind mount ("src:dst[:ro]"); None for a named volume."""
+    written = _mount_source(entry)
+    if not written.startswith(("/", ".", "~")):
+        return None
+    return written, _robot_path(written, home, release), _bind_writable(entry)
+
+
+@functools.lru_cache(maxsize=4096)    # pure, and a fleet's robots share their mounts: once per path
+def _robot_path(source: str, home: str, release: str) -> str:
+    """A bind mount's source as compose reads it on the robot: `~` is the SSH user's home (`~x`
+    too: compose joins what follows), any other relative path is from the release folder."""
+    if source.startswith("~"):
+        source = f"{home}/{source[1:]}"
+    elif not source.startswith("/"):
+        source = f"{release}/{source}"
+    return _normal_path(source)
+
+
+def _shown_mount(path: str, written: str) -> str:
+    return path if written == path else f"{written} ({path} on the robot)"
+
+
+@functools.lru_cache(maxsize=4096)    # pure, and a fleet's robots share their mounts: once per path
+def _root_folder(path: str, robot: _Robot) -> str:
+    """The folder writing `path` is root through (a system folder, the deploy user's home or deploy
+    root); "" for any other, and for the project's logs and store, which the built-in template
+    mounts (../../logs/<service>) and which give nobody root."""
+    if any(path == own or path.startswith(own + "/") for own in (f"{robot.project}/logs", f"{robot.project}/store")):
+        return ""
+    return _system_folder(path) or _deploy_folder(path, robot.home, robot.root)
+
+
+@functools.lru_cache(maxsize=1024)    # pure, and a fleet's robots share their mounts: once per path
+def _deploy_folder(path: str, home: str, root: str) -> str:
+    """The deploy user's folder a writable mount of `path` writes: its home or a dot file in it
+    (~/.ssh/authorized_keys), or the deploy root (the releases, their compose files and the guard,
+    which the robot runs as root); "" for any other path (the logs and store: see _root_folder)."""
+    for folder in (root, home):
+        if path == folder or folder.startswith(path.rstrip("/") + "/"):
+            return folder
+    if path.startswith(root + "/"):
+        return root
+    if path.startswith(home + "/") and path[len(home) + 1:].startswith("."):
+        return f"{home}/{path[len(home) + 1:].split('/')[0]}"
+    return ""
 
 
 @functools.lru_cache(maxsize=1024)    # pure, and a fleet's robots share their mounts: once per path
 def _system_folder(source: str) -> str:
     """The system folder `source` is, lies in or holds; "" for any other path."""
     if not source.startswith("/") or source in _HARMLESS:
-        return ""     # a named volume, a path inside the release (its store, its logs), the time zone
+        return ""     # a named volume, the time zone
     for folder in _SYSTEM_FOLDERS:
-        if source == folder or source.startswith(folder + "/") or folder.startswith(source.rstrip("/") + "/"):
+        if source == folder or folder.startswith(source.rstrip("/") + "/"):
             return folder
+        if source.startswith(folder + "/"):
+            if folder != "/home":
+                return folder
+            user, _, inside = source[len("/home/"):].partition("/")
+            if not inside or inside.startswith("."):     # a home, its ~/.ssh, its ~/.bashrc
+                return f"/home/{user}" + (f"/{inside.split('/')[0]}" if inside else "")
     return ""
 
 
 def _holds(source: str, folder: str) -> str:
     return f", which holds {folder}" if folder.startswith(source.rstrip("/") + "/") else ""
+
+
+def _writable(entry: Any) -> bool:
+    """A service's mount without read-only (`name:dst:ro` or the long form's read_only)."""
+    if isinstance(entry, dict):
+        return not entry.get("read_only")
+    parts = str(entry).split(":")
+    return len(parts) > 1 and "ro" not in (parts[2].split(",") if len(parts) > 2 else ())
 
 
 def _bind_writable(entry: Any) -> bool:
