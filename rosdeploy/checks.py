@@ -29,8 +29,8 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 from rosdeploy import yamlsrc
 from rosdeploy.errors import InputError, Problem, shown
-from rosdeploy.fleet import _HOST_NET_SYSCTLS, _IPC_SYSCTLS, _sysctl_names, problem_at, size_bytes
-from rosdeploy.inventory.hostvars import PREFIX
+from rosdeploy.fleet import HOST_NET_SYSCTLS, IPC_SYSCTLS, problem_at, size_bytes, sysctl_names
+from rosdeploy.inventory.hostvars import PREFIX, case_variant
 from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
 from rosdeploy.output import LONG_SECRET
 
@@ -359,9 +359,22 @@ def _domain_missing(ctx: Context, host: Host) -> Iterator[Problem]:
     # the inventory reads rosdeploy_ros_domain_id before ros_domain_id, and a null as unset
     var = next((v for v in (PREFIX + "ros_domain_id", "ros_domain_id") if v in host.vars), "ros_domain_id")
     if host.vars.get(var) is None:
-        yield host_problem(host, var, (
-            f"{shown(host.name)} declares no ros_domain_id: without one it would join domain 0 with every other "
-            "such robot; add `ros_domain_id: N` (0-101, unique on its network) to its host vars"))
+        # `ROS_DOMAIN_ID: 5`, the environment variable's spelling, is likely what the robot has
+        other = case_variant(host.vars, "ros_domain_id") or case_variant(host.vars, PREFIX + "ros_domain_id")
+        also = f" ({shown(other)} is set, but names are case-sensitive: rename it ros_domain_id)" if other else ""
+        yield host_problem(host, other or var, (
+            f"{shown(host.name)} declares no ros_domain_id{also}: without one it would join domain 0 with every "
+            "other such robot; add `ros_domain_id: N` (0-101, unique on its network) to its host vars"))
+
+
+@rule("order-by-unmatched", "warning", "fleet", "rollout.order_by is the prefix of a group of the targeted robots.",
+      "Fix the prefix (e.g. site_), or remove rollout.order_by.")
+def _order_by_unmatched(ctx: Context) -> Iterator[Problem]:
+    prefix = ctx.spec.rollout.order_by
+    if prefix and ctx.hosts and not any(g.startswith(prefix) for h in ctx.hosts for g in h.groups):
+        yield problem_at(ctx.spec, ("rollout", "order_by"), (
+            f"no group of the targeted robots starts with {shown(prefix)}: the rollout keeps the inventory's "
+            "order, with no grouping; check the prefix"))
 
 
 @rule("domain-id-range", "error", "host", "ROS_DOMAIN_ID is within 0-232.",
@@ -678,12 +691,12 @@ def _refused_sysctls(name: str, svc: Mapping[str, Any]) -> Finding:
     """Sysctls runc or Docker refuse for this service, as fleet._check_compose_conflicts judges the
     fleet's `compose: {sysctls}`: else every robot fails at `up`."""
     host_net = svc.get("network_mode") == "host"
-    for at, sysctl in _sysctl_names(svc.get("sysctls")):
-        if not sysctl.startswith(_IPC_SYSCTLS + _HOST_NET_SYSCTLS):
+    for at, sysctl in sysctl_names(svc.get("sysctls")):
+        if not sysctl.startswith(IPC_SYSCTLS + HOST_NET_SYSCTLS):
             why = "is not a namespaced sysctl: runc refuses to set the robot's kernel from a container"
-        elif sysctl.startswith(_HOST_NET_SYSCTLS) and host_net:
+        elif sysctl.startswith(HOST_NET_SYSCTLS) and host_net:
             why = "needs the container's own network namespace: Docker refuses it on host networking"
-        elif sysctl.startswith(_IPC_SYSCTLS) and svc.get("ipc") == "host":
+        elif sysctl.startswith(IPC_SYSCTLS) and svc.get("ipc") == "host":
             why = "needs the container's own IPC namespace: Docker refuses it with `ipc: host`"
         else:
             continue

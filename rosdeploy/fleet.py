@@ -1396,8 +1396,8 @@ def _check_service(r: Reader, kp: KeyPath, svc: dict, names: list[str], registry
 # Sysctls a container may set in its own IPC, network or UTS namespace (runc's validator); the
 # rest are the robot's kernel's, which runc refuses to touch from a container. Host networking
 # shares the host's network and UTS namespaces.
-_IPC_SYSCTLS = ("kernel.shm", "kernel.msg", "kernel.sem", "fs.mqueue.")
-_HOST_NET_SYSCTLS = ("net.", "kernel.domainname", "kernel.hostname")
+IPC_SYSCTLS = ("kernel.shm", "kernel.msg", "kernel.sem", "fs.mqueue.")
+HOST_NET_SYSCTLS = ("net.", "kernel.domainname", "kernel.hostname")
 
 
 def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]) -> None:
@@ -1421,15 +1421,15 @@ def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]
         r.error(where + ("memswap_limit",), "below `resources.memory`: memory plus swap cannot be less than "
                                             "memory (Docker refuses it); raise it, or -1 for unlimited swap")
     host_net = r.raw(("ros", "network_mode")) in (None, "host")
-    for at, name in _sysctl_names(extra.get("sysctls")):
-        if not name.startswith(_IPC_SYSCTLS + _HOST_NET_SYSCTLS):
+    for at, name in sysctl_names(extra.get("sysctls")):
+        if not name.startswith(IPC_SYSCTLS + HOST_NET_SYSCTLS):
             r.error(where + ("sysctls", at), f"{name} is not a namespaced sysctl: runc refuses to set the robot's "
                                              "kernel from a container; set it on the robot")
-        elif name.startswith(_HOST_NET_SYSCTLS) and host_net:
+        elif name.startswith(HOST_NET_SYSCTLS) and host_net:
             r.error(where + ("sysctls", at), f"Docker refuses {name} in the host's namespaces "
                                              "(`ros.network_mode: host`): it needs the container's own; "
                                              "set it on the robot")
-        elif name.startswith(_IPC_SYSCTLS) and extra.get("ipc") == "host":
+        elif name.startswith(IPC_SYSCTLS) and extra.get("ipc") == "host":
             r.error(where + ("sysctls", at), f"Docker refuses {name} with `ipc: host`: it needs the container's "
                                              "own IPC namespace")
     mac = extra.get("mac_address")
@@ -1745,7 +1745,7 @@ def _check_ulimit(r: Reader, kp: KeyPath, soft: int, hard: int) -> None:
         r.error(kp, "soft is above hard: Docker refuses it (-1 is unlimited)")
 
 
-def _sysctl_names(sysctls: Any) -> list[tuple[str | int, str]]:
+def sysctl_names(sysctls: Any) -> list[tuple[str | int, str]]:
     """(key path item, sysctl name) of compose's mapping or `name=value` list form."""
     if isinstance(sysctls, dict):
         return [(name, str(name)) for name in sysctls]

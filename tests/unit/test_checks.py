@@ -16,7 +16,8 @@ import yaml
 
 from rosdeploy import checks
 from rosdeploy.checks import RULES, dds_peers, interpolate, parse_env, run_checks
-from rosdeploy.model import FleetSpec, HealthCheck, Host, RenderedFile, RenderedRelease, Service, Topic, frozen_map
+from rosdeploy.model import (FleetSpec, HealthCheck, Host, RenderedFile, RenderedRelease, RolloutPolicy, Service, Topic,
+                             frozen_map)
 
 GOOD_SERVICE: dict[str, Any] = {
     "image": "registry.local:5000/acme/driver:1.0",
@@ -111,6 +112,20 @@ def test_domain_id_missing() -> None:
     bare = replace(host(), vars=frozen_map({}))
     assert "declares no ros_domain_id" in fires("domain-id-missing", hosts=[bare]).message
     silent("domain-id-missing")
+    # the environment variable's spelling, set where the robot's own var belongs (ninth round)
+    shouted = replace(host(), vars=frozen_map({"ROS_DOMAIN_ID": 5}))
+    p = fires("domain-id-missing", hosts=[shouted])
+    assert "declares no ros_domain_id ('ROS_DOMAIN_ID' is set, but names are case-sensitive" in p.message, p.message
+    assert p.key == "ROS_DOMAIN_ID"
+
+
+def test_order_by_that_matches_no_group_of_the_targets() -> None:
+    # `rollout.order_by: stie_` deployed every site in one order, silently (ninth round)
+    sited = host(groups=("all", "site_north"))
+    p = fires("order-by-unmatched", fleet=spec(rollout=RolloutPolicy(order_by="stie_")), hosts=[sited])
+    assert p.key == "rollout.order_by" and "no group of the targeted robots starts with 'stie_'" in p.message
+    silent("order-by-unmatched", fleet=spec(rollout=RolloutPolicy(order_by="site_")), hosts=[sited])
+    silent("order-by-unmatched", hosts=[sited])
 
 
 @pytest.mark.parametrize("domain", [-1, 233, 1000])
