@@ -65,7 +65,7 @@ def wait_health(robot: str, containers: dict[str, str], timeout: float = 90) -> 
     deadline = time.monotonic() + timeout
     seen = {name: health(robot, name) for name in containers}
     while seen != containers and time.monotonic() < deadline:
-        time.sleep(2)
+        time.sleep(0.5)
         seen = {name: health(robot, name) for name in containers}
     return seen
 
