@@ -29,7 +29,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 from rosdeploy import yamlsrc
 from rosdeploy.errors import InputError, Problem, shown
-from rosdeploy.fleet import HOST_NET_SYSCTLS, IPC_SYSCTLS, problem_at, size_bytes, sysctl_names
+from rosdeploy.fleet import problem_at, size_bytes, sysctl_names, sysctl_refusal
 from rosdeploy.inventory.hostvars import PREFIX, case_variant
 from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
 from rosdeploy.output import LONG_SECRET
@@ -690,18 +690,19 @@ def _outside_keys(svc: Mapping[str, Any]) -> Iterator[tuple[str, str]]:
 def _refused_sysctls(name: str, svc: Mapping[str, Any]) -> Finding:
     """Sysctls runc or Docker refuse for this service, as fleet._check_compose_conflicts judges the
     fleet's `compose: {sysctls}`: else every robot fails at `up`."""
-    host_net = svc.get("network_mode") == "host"
+    host_net, ipc_host = svc.get("network_mode") == "host", svc.get("ipc") == "host"
     for at, sysctl in sysctl_names(svc.get("sysctls")):
-        if not sysctl.startswith(IPC_SYSCTLS + HOST_NET_SYSCTLS):
-            why = "is not a namespaced sysctl: runc refuses to set the robot's kernel from a container"
-        elif sysctl.startswith(HOST_NET_SYSCTLS) and host_net:
-            why = "needs the container's own network namespace: Docker refuses it on host networking"
-        elif sysctl.startswith(IPC_SYSCTLS) and svc.get("ipc") == "host":
-            why = "needs the container's own IPC namespace: Docker refuses it with `ipc: host`"
-        else:
-            continue
-        yield ("services", name, "compose", "sysctls", at), (
-            f"service {name} of {ROBOTS} sets sysctl {shown(sysctl)}, which {why}; set it on the robot")
+        why = _SYSCTL_REFUSED.get(sysctl_refusal(sysctl, host_net, ipc_host))
+        if why:
+            yield ("services", name, "compose", "sysctls", at), (
+                f"service {name} of {ROBOTS} sets sysctl {shown(sysctl)}, which {why}; set it on the robot")
+
+
+_SYSCTL_REFUSED = {
+    "kernel": "is not a namespaced sysctl: runc refuses to set the robot's kernel from a container",
+    "host-net": "needs the container's own network namespace: Docker refuses it on host networking",
+    "ipc-host": "needs the container's own IPC namespace: Docker refuses it with `ipc: host`",
+}
 
 
 @rule("log-rotation-missing", "error", "service", "Every service's logs rotate (json-file max-size and max-file).",

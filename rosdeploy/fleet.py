@@ -1422,14 +1422,15 @@ def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]
                                             "memory (Docker refuses it); raise it, or -1 for unlimited swap")
     host_net = r.raw(("ros", "network_mode")) in (None, "host")
     for at, name in sysctl_names(extra.get("sysctls")):
-        if not name.startswith(IPC_SYSCTLS + HOST_NET_SYSCTLS):
+        refused = sysctl_refusal(name, host_net, extra.get("ipc") == "host")
+        if refused == "kernel":
             r.error(where + ("sysctls", at), f"{name} is not a namespaced sysctl: runc refuses to set the robot's "
                                              "kernel from a container; set it on the robot")
-        elif name.startswith(HOST_NET_SYSCTLS) and host_net:
+        elif refused == "host-net":
             r.error(where + ("sysctls", at), f"Docker refuses {name} in the host's namespaces "
                                              "(`ros.network_mode: host`): it needs the container's own; "
                                              "set it on the robot")
-        elif name.startswith(IPC_SYSCTLS) and extra.get("ipc") == "host":
+        elif refused == "ipc-host":
             r.error(where + ("sysctls", at), f"Docker refuses {name} with `ipc: host`: it needs the container's "
                                              "own IPC namespace")
     mac = extra.get("mac_address")
@@ -1743,6 +1744,19 @@ def _check_ulimit(r: Reader, kp: KeyPath, soft: int, hard: int) -> None:
     """-1 is unlimited (go-units' ParseUlimit): a soft limit may not pass its hard one."""
     if hard != -1 and (soft == -1 or soft > hard):
         r.error(kp, "soft is above hard: Docker refuses it (-1 is unlimited)")
+
+
+def sysctl_refusal(name: str, host_net: bool, ipc_host: bool) -> str:
+    """Why runc or Docker refuse to set sysctl `name` in a container: "kernel" (not namespaced: the
+    robot's own), "host-net" (a network one on host networking), "ipc-host" (an IPC one with
+    `ipc: host`); "" when it is set. The fleet's `compose:` and a rendered compose.yml alike."""
+    if not name.startswith(IPC_SYSCTLS + HOST_NET_SYSCTLS):
+        return "kernel"
+    if name.startswith(HOST_NET_SYSCTLS) and host_net:
+        return "host-net"
+    if name.startswith(IPC_SYSCTLS) and ipc_host:
+        return "ipc-host"
+    return ""
 
 
 def sysctl_names(sysctls: Any) -> list[tuple[str | int, str]]:
