@@ -51,7 +51,8 @@ REMOTE_PATH_RE = re.compile(r"(~|~/[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*|(/[A-Za-z0
 # Linux's PATH_MAX (4096) leaves room for what goes below it, and no real folder comes near it.
 # NAME_MAX (255) bounds each name in it (REMOTE_PATH_RE is ASCII: characters are bytes).
 MAX_REMOTE_ROOT = 1024
-MAX_PATH_NAME = 255
+MAX_PATH = 4096        # Linux's PATH_MAX, in bytes
+MAX_PATH_NAME = 255    # NAME_MAX: each name in a path
 _DOMAIN = (r"(?:localhost|[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?)*)"
            r"(?::[0-9]{1,5})?")
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
@@ -1746,6 +1747,16 @@ def _check_ulimit(r: Reader, kp: KeyPath, soft: int, hard: int) -> None:
         r.error(kp, "soft is above hard: Docker refuses it (-1 is unlimited)")
 
 
+def path_too_long(path: str, example: str) -> str | None:
+    """Why Linux cannot take `path` (ENAMETOOLONG where Docker, udev or render use it), or None."""
+    size = len(path.encode())
+    if size <= MAX_PATH and max(len(name.encode()) for name in path.split("/")) <= MAX_PATH_NAME:
+        return None
+    unit = "characters" if path.isascii() else "bytes"
+    return (f"a path of {size} {unit}: Linux allows {MAX_PATH}, and {MAX_PATH_NAME} for each name in it; "
+            f"shorten it, e.g. {example}")
+
+
 def sysctl_refusal(name: str, host_net: bool, ipc_host: bool) -> str:
     """Why runc or Docker refuse to set sysctl `name` in a container: "kernel" (not namespaced: the
     robot's own), "host-net" (a network one on host networking), "ipc-host" (an IPC one with
@@ -1938,10 +1949,9 @@ def _robot_file(r: Reader, kp: KeyPath, value: Any) -> Any:
     if not ABSOLUTE_PATH_RE.fullmatch(target) or target != normal_path(target) or target == "/":
         raise Invalid(f"{shown(target)} must be an absolute file path in the container, written without "
                       "`.`, `..`, `//` or a trailing `/`, e.g. /config/params.yaml", ("target",))
-    if len(target) > 4096 or max(map(len, target.split("/"))) > 255:
-        # its name is a file of the release (store/<digest>/<name>): render would fail to write it
-        raise Invalid(f"a path of {len(target)} characters: Linux allows 4096, and 255 for each name in it; "
-                      "shorten it, e.g. /config/params.yaml", ("target",))
+    too_long = path_too_long(target, "/config/params.yaml")
+    if too_long:     # its name is a file of the release (store/<digest>/<name>): render would fail to write it
+        raise Invalid(too_long, ("target",))
     taken = managed_mount(target)
     if taken:
         raise Invalid(f"{target} is where rosdeploy mounts {taken} itself: choose another path", ("target",))

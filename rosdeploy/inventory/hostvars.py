@@ -12,7 +12,8 @@ from typing import Any, Callable, Iterable, Mapping
 
 from rosdeploy import suggest
 from rosdeploy.errors import Problem, shown
-from rosdeploy.fleet import REMOTE_PATH_RE, home_problem, known_hosts_problem, normal_path, remote_root_too_long
+from rosdeploy.fleet import (REMOTE_PATH_RE, home_problem, known_hosts_problem, normal_path, path_too_long,
+                             remote_root_too_long)
 from rosdeploy.inventory.draft import Layer, Origin
 from rosdeploy.inventory.known import (ANSIBLE_VARS, FALSE, HEX4, MODE, NAME, NEAR_MISS_CUTOFF, SERIAL,
                                        SHELL_UNSAFE, SUBSYSTEM, SYMLINK, TRUE, UDEV_KEYS, UDEV_REQUIRED,
@@ -465,19 +466,11 @@ def _device_path(path: Any, subpath: KeyPath) -> str:
     return path
 
 
-MAX_PATH = 4096        # Linux's PATH_MAX, in bytes
-MAX_PATH_NAME = 255    # NAME_MAX: each name in a path
-
-
 def _within_path_limits(path: str, example: str, subpath: KeyPath) -> None:
-    """Refuse a path Linux cannot take (ENAMETOOLONG when Docker or udev uses it), in the words
-    the fleet file's files.target bound uses."""
-    size = len(path.encode())
-    longest = max(len(name.encode()) for name in path.split("/"))
-    if size > MAX_PATH or longest > MAX_PATH_NAME:
-        unit = "characters" if path.isascii() else "bytes"
-        raise BadValue(f"a path of {size} {unit}: Linux allows {MAX_PATH}, and {MAX_PATH_NAME} for each name in "
-                       f"it; shorten it, e.g. {example}", subpath)
+    """Refuse a path Linux cannot take, in the words of the fleet file's files.target bound."""
+    too_long = path_too_long(path, example)
+    if too_long:
+        raise BadValue(too_long, subpath)
 
 
 def _to_udev(value: Any) -> tuple[UdevDevice, ...]:
