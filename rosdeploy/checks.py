@@ -893,12 +893,13 @@ def _mount_system_writable(ctx: Context, t: Target, name: str, svc: dict) -> Fin
 # passwd, cron, systemd units), root's home, the boot files and kernel modules, the programs root
 # runs, the kernel's own settings (/proc/sys/kernel/core_pattern and /sys/kernel/uevent_helper run a
 # program as root), and the engines' data (a container's files, its config). Of /sys, only the
-# kernel's settings, modules, firmware and cgroups: /sys/class/gpio or /sys/bus/iio are the robot's
+# kernel's settings, modules, firmware, cgroups (release_agent) and power (resume= loads a hibernated
+# kernel from any device); /sys itself holds them all. /sys/class/gpio or /sys/bus/iio are the robot's
 # hardware, which robot containers do mount. Of /home, the folder itself, a user's home and its
 # dot files (~/.ssh/authorized_keys, ~/.bashrc: the deploy user runs docker, so is root): a data
 # folder in a home (/home/ros/maps) is what robot containers mount.
 _SYSTEM_FOLDERS = ("/etc", "/root", "/boot", "/proc", "/sys/kernel", "/sys/module", "/sys/fs", "/sys/firmware",
-                   "/usr", "/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32", "/var/lib/docker",
+                   "/sys/power", "/usr", "/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32", "/var/lib/docker",
                    "/var/lib/containerd", "/var/spool/cron", "/home")
 # Files of /etc that robot containers commonly mount, and whose content gives nobody root
 _HARMLESS = frozenset({"/etc/localtime", "/etc/timezone", "/etc/machine-id", "/etc/hostname", "/etc/os-release",
@@ -999,13 +1000,11 @@ def _deploy_folder(path: str, home: str, root: str) -> str:
     (~/.ssh/authorized_keys), or the deploy root (the releases, their compose files and the guard,
     which the robot runs as root); "" for any other path (the logs and store: see _root_folder)."""
     for folder in (root, home):
-        if path == folder or folder.startswith(path.rstrip("/") + "/"):
+        if _is_or_holds(path, folder):
             return folder
     if path.startswith(root + "/"):
         return root
-    if path.startswith(home + "/") and path[len(home) + 1:].startswith("."):
-        return f"{home}/{path[len(home) + 1:].split('/')[0]}"
-    return ""
+    return _dot_file(path, home)
 
 
 @functools.lru_cache(maxsize=1024)    # pure, and a fleet's robots share their mounts: once per path
@@ -1014,15 +1013,26 @@ def _system_folder(source: str) -> str:
     if not source.startswith("/") or source in _HARMLESS:
         return ""     # a named volume, the time zone
     for folder in _SYSTEM_FOLDERS:
-        if source == folder or folder.startswith(source.rstrip("/") + "/"):
+        if _is_or_holds(source, folder):
             return folder
         if source.startswith(folder + "/"):
             if folder != "/home":
                 return folder
             user, _, inside = source[len("/home/"):].partition("/")
-            if not inside or inside.startswith("."):     # a home, its ~/.ssh, its ~/.bashrc
-                return f"/home/{user}" + (f"/{inside.split('/')[0]}" if inside else "")
+            found = _dot_file(source, f"/home/{user}") if inside else f"/home/{user}"   # a home, ~/.ssh, ~/.bashrc
+            if found:
+                return found
     return ""
+
+
+def _is_or_holds(path: str, folder: str) -> bool:
+    return path == folder or folder.startswith(path.rstrip("/") + "/")
+
+
+def _dot_file(path: str, home: str) -> str:
+    """The dot file or folder of `home` (~/.ssh, ~/.bashrc) that `path` is or lies in; "" for any other."""
+    inside = path[len(home) + 1:] if path.startswith(home + "/") else ""
+    return f"{home}/{inside.split('/')[0]}" if inside.startswith(".") else ""
 
 
 def _holds(source: str, folder: str) -> str:

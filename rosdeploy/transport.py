@@ -32,6 +32,7 @@ from typing import Callable, Iterable, Iterator, Mapping, Protocol, Sequence
 
 import paramiko
 from fabric import Config, Connection
+from paramiko.pkey import UnknownKeyType
 
 from rosdeploy import execwait
 from rosdeploy.commands import Command
@@ -552,8 +553,9 @@ class KnownHosts:
     hashed: tuple[int, ...]                           # the entries of hashed names
     patterned: tuple[int, ...]                        # entries with a `*`, `?` or `!` pattern
     revoked: frozenset[tuple[str, bytes]]             # (key type, key blob)
-    notes: tuple[tuple[int | None, str], ...]         # (line, what was skipped there and why)
+    notes: tuple[tuple[int | None, str], ...]         # (line, what was skipped there and why), grouped
     path: str = ""
+    skipped: tuple[tuple[int, str], ...] = ()         # (line, why it was skipped): every skipped line
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -664,7 +666,8 @@ def _file_kind(mode: int) -> str:
 
 def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
     """Plain entries (hashed or not), minus @revoked keys; the rest skipped with a warning."""
-    revoked, authorities, unreadable, bad_revoked = set(), [], [], []
+    revoked: set[tuple[str, bytes]] = set()
+    skipped: list[tuple[int, str, str]] = []        # (line, kind, why)
     entries: list[tuple[int, paramiko.hostkeys.HostKeyEntry]] = []
     for number, line in enumerate(lines, 1):
         line = line.strip(" \t")        # OpenSSH's blanks only: a \x0c or \x85 is part of the line
@@ -672,12 +675,14 @@ def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
             continue
         fields = [f for f in re.split("[ \t]+", line) if f]
         if fields[0] == "@cert-authority":
-            authorities.append(number)
+            skipped.append((number, "authority", _CERT_AUTHORITY))
         elif fields[0] == "@revoked":
             blob = _key_blob(fields[2:4]) if len(fields) >= 4 else None
-            (bad_revoked.append(number) if blob is None else revoked.add(blob))
-        elif (entry := None if fields[0].startswith("@") else _entry(line)) is None:
-            unreadable.append(number)       # an unknown marker (`@REVOKED` too, as in OpenSSH) or not a key
+            (skipped.append((number, "revoked", _BAD_REVOKED)) if blob is None else revoked.add(blob))
+        # one blank between fields, as paramiko splits them: OpenSSH takes any run of blanks
+        elif (entry := None if fields[0].startswith("@") else _entry(" ".join(fields))) is None:
+            # an unknown marker (`@REVOKED` too, as in OpenSSH) or not a key
+            skipped.append((number, "unreadable", _why_unreadable(fields)))
         else:
             entries.append((number, entry))
     # a revoked key is never trusted, whatever else the file says
@@ -692,8 +697,38 @@ def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
         else:
             for name in field.lower().split(","):
                 plain.setdefault(name, []).append(i)
+    kinds = {kind: [n for n, k, _ in skipped if k == kind] for kind in ("authority", "unreadable", "revoked")}
     return KnownHosts(tuple(kept), {name: tuple(found) for name, found in plain.items()}, tuple(hashed),
-                      tuple(patterned), frozenset(revoked), _notes(authorities, unreadable, bad_revoked), path)
+                      tuple(patterned), frozenset(revoked),
+                      _notes(kinds["authority"], kinds["unreadable"], kinds["revoked"]), path,
+                      tuple((n, why) for n, _, why in skipped))
+
+
+_CERT_AUTHORITY = ("an @cert-authority line, skipped: rosdeploy cannot verify SSH host certificates (paramiko does "
+                   "not); list the robots' plain host keys in known_hosts")
+_BAD_REVOKED = ("an @revoked line that cannot be read: the key it means to revoke is NOT revoked; write `@revoked "
+                "HOSTS TYPE BASE64`")
+_KEY_TYPE = re.compile(r"[A-Za-z0-9@._+-]{1,64}")
+
+
+def _why_unreadable(fields: list[str]) -> str:
+    """Why a line is no host key rosdeploy can read, named without its text (it may be any bytes)."""
+    if fields[0].startswith("@"):
+        return ("an unknown marker, skipped (OpenSSH knows @cert-authority and @revoked, in lower case); fix or "
+                "remove it")
+    if len(fields) < 3:
+        return "not a host key line (HOSTS TYPE BASE64), skipped; fix or remove it"
+    names = fields[0].split(",")
+    if any(name.startswith("|") for name in names) and (len(names) != 1 or not _readable_name(names[0])):
+        return "a hashed host name that is not one `|1|SALT|HASH` of base64, skipped; fix or remove it"
+    kind = f"key type {fields[1]}" if _KEY_TYPE.fullmatch(fields[1]) else "its key type"
+    try:
+        paramiko.PKey.from_type_string(fields[1], base64.decodebytes(fields[2].encode()))
+    except UnknownKeyType:
+        return f"{kind} is one rosdeploy (paramiko) cannot use, skipped; list another key of the robot's"
+    except Exception:   # noqa: BLE001 - binascii.Error, SSHException, ValueError...: what _entry refused
+        return f"its key is not base64 of a key of {kind}, skipped; fix or remove it"
+    return "not a host key rosdeploy can read, skipped; fix or remove it"
 
 
 def _entry(line: str) -> paramiko.hostkeys.HostKeyEntry | None:
@@ -758,17 +793,28 @@ def known_hosts_warnings(path: str) -> tuple[str, ...]:
 
 
 def known_hosts_problems(hosts: Iterable[Host], options: SSHOptions) -> list[Problem]:
-    """The robots' known_hosts files' skipped lines as warnings (an unusable file as an error),
-    each file once: for validate, check and status to show whether or not a robot's key is found."""
+    """One warning per skipped line of the robots' known_hosts files, saying why (the first
+    MAX_SKIPPED_SHOWN of a file, then how many more), an unusable file as an error, each file
+    once: for status and apply to show whether or not a robot's key is found. validate and check
+    do not read known_hosts: its keys need paramiko, whose import alone is 0.2 s."""
     found: list[Problem] = []
     for path in dict.fromkeys(p for host in hosts for p in known_hosts_for(host, options)):
         try:
-            notes = _parsed_host_keys(path).notes
+            known = _parsed_host_keys(path)
         except UnusableKnownHosts as exc:
             found.append(Problem(path, None, "", f"{exc}".removeprefix(f"known_hosts file {path} ")))
             continue
-        found += [Problem(path, line, "", note, severity="warning") for line, note in notes]
+        found += [Problem(path, line, "", note, severity="warning") for line, note in _each_line(known)]
     return found
+
+
+MAX_SKIPPED_SHOWN = 20     # lines named one by one in a file; a summary for the rest
+
+
+def _each_line(known: KnownHosts) -> tuple[tuple[int | None, str], ...]:
+    shown, rest = known.skipped[:MAX_SKIPPED_SHOWN], known.skipped[MAX_SKIPPED_SHOWN:]
+    more = ((rest[0][0], f"and {len(rest)} more line(s) skipped from here on, not named one by one"),) if rest else ()
+    return (*shown, *more)
 
 
 def _parsed_host_keys(path: str) -> KnownHosts:

@@ -40,6 +40,13 @@ MAX_INT_BITS = 14_000      # about 4,200 decimal digits
 
 _COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
 
+# Inventory keys rosdeploy reads as numbers. YAML 1.1 (PyYAML, as Ansible reads it) takes a plain
+# `017` for octal 15: the robot would join another ROS domain, ssh another port. Read so all the
+# same, as Ansible does, with a warning. Only these keys: `mode: 0644` is octal on purpose.
+_NUMBER_KEYS = frozenset({"ros_domain_id", "ansible_port", "ansible_ssh_port"})
+_OCTAL = re.compile(r"[-+]?0[0-7_]+")
+_INT_TAG = "tag:yaml.org,2002:int"
+
 # Code points no file rosdeploy writes may hold, wherever a value comes from (a YAML escape, an INI
 # literal, a Jinja string escape, a script's JSON): a lone surrogate is half of a UTF-16 pair, not a
 # character, so UTF-8 cannot encode it (writing it crashed); the noncharacters are outside YAML's
@@ -130,7 +137,8 @@ def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | 
     """Parse one YAML file; any problem becomes an InputError naming file and line.
 
     A duplicate key is an error, unless `duplicates` is given: then, as in Ansible
-    (inventories), it is a warning appended there and the last value wins.
+    (inventories), it is a warning appended there and the last value wins. That list
+    (the inventory's warnings) also gets one for an octal-looking number (_octal_warning).
 
     Bounded for every caller (fleet file, inventory, vars files, rendered compose files):
     nesting deeper than MAX_DEPTH and alias expansion beyond MAX_EXPANSION times the
@@ -430,7 +438,20 @@ def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: s
         return _build_mapping(node, keypath, lines, path, c, duplicates)
     if isinstance(node, yaml.SequenceNode):
         return [_build(item, keypath + (i,), lines, path, c, duplicates) for i, item in enumerate(node.value)]
-    return _scalar_value(node, keypath, path, c)
+    value = _scalar_value(node, keypath, path, c)
+    if duplicates is not None and keypath and keypath[-1] in _NUMBER_KEYS:
+        duplicates.extend(_octal_warning(node, value, keypath, path))
+    return value
+
+
+def _octal_warning(node: yaml.Node, value: Any, keypath: KeyPath, path: str) -> list[Problem]:
+    """A warning for a plain `017` (read as 15), none for `07` or `0` (the same read either way)."""
+    text = node.value if isinstance(node, yaml.ScalarNode) and not node.style and node.tag == _INT_TAG else ""
+    if not _OCTAL.fullmatch(text) or int(text.replace("_", ""), 10) == value:
+        return []
+    return [Problem(path, node.start_mark.line + 1, dotted(keypath),
+                    f"`{text}` is read as octal ({value}), as Ansible reads it; write {value}, or quote it",
+                    severity="warning")]
 
 
 _SET_TAG = "tag:yaml.org,2002:set"

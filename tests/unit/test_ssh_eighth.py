@@ -148,8 +148,9 @@ def test_14_skipped_lines_are_warned_when_the_key_is_found_and_a_symlink_loop_is
     opts = options(tmp_path, known=f"[127.0.0.1]:2201 ssh-ed25519 {K1}\n@REVOKED x ssh-ed25519 {K1}\n"
                                    "@revoked x ssh-ed25519 !!!\nx ssh-ed448 AAAA\n")
     found = transport.known_hosts_problems([robot(address="127.0.0.1", port=2201)], opts)
-    assert [(p.line, p.severity) for p in found] == [(3, "warning"), (2, "warning")], found
-    assert "NOT revoked" in found[0].message and "2, 4" in found[1].message
+    assert [(p.line, p.severity) for p in found] == [(2, "warning"), (3, "warning"), (4, "warning")], found
+    assert "unknown marker" in found[0].message and "NOT revoked" in found[1].message
+    assert "key type ssh-ed448" in found[2].message
     loop = tmp_path / "loop"
     loop.symlink_to(loop)
     assert "cannot be read" in (fleet.known_hosts_problem(str(loop)) or "")
