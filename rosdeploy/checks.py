@@ -27,8 +27,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
+import yaml
+
 from rosdeploy import yamlsrc
 from rosdeploy.errors import InputError, Problem, shown
+from rosdeploy.files import reads_as_number
 from rosdeploy.fleet import problem_at, size_bytes, sysctl_names, sysctl_refusal
 from rosdeploy.inventory.hostvars import PREFIX, case_variant
 from rosdeploy.model import FleetSpec, Host, RenderedRelease, Service
@@ -367,6 +370,12 @@ def _domain_missing(ctx: Context, host: Host) -> Iterator[Problem]:
             "other such robot; add `ros_domain_id: N` (0-101, unique on its network) to its host vars"))
 
 
+@rule("fleet-octal-number", "warning", "fleet", "No number in the fleet file is written like 017, which YAML 1.1 "
+      "(and so Ansible) reads as octal: 15.", "Write the number without its leading 0.")
+def _fleet_octal(ctx: Context) -> Iterator[Problem]:
+    yield from ctx.spec.warnings      # found as the file was read (yamlsrc._octal_warning)
+
+
 @rule("order-by-unmatched", "warning", "fleet", "rollout.order_by is the prefix of a group of the targeted robots.",
       "Fix the prefix (e.g. site_), or remove rollout.order_by.")
 def _order_by_unmatched(ctx: Context) -> Iterator[Problem]:
@@ -404,7 +413,7 @@ def _device_undeclared(ctx: Context, host: Host) -> Iterator[Problem]:
         for i, device in enumerate(svc.devices):
             if device not in host.devices:
                 yield problem_at(ctx.spec, ("services", svc.name, "devices", i), (
-                    f"service {svc.name} needs device `{device}`, which the inventory does not declare for "
+                    f"service {shown(svc.name)} needs device `{device}`, which the inventory does not declare for "
                     f"{ROBOTS}: add `{device}: /dev/robot/{device}` under their `devices:` (host or group vars), "
                     f"or remove it from the service"))
 
@@ -421,8 +430,8 @@ def _device_duplicate(ctx: Context, host: Host) -> Iterator[Problem]:
             if path is None or first.setdefault(path, device) == device:
                 continue
             yield problem_at(ctx.spec, ("services", svc.name, "devices", i), (
-                f"service {svc.name} maps devices `{first[path]}` and `{device}`, which are both {shown(path)} on "
-                f"{ROBOTS}: Compose v1 refuses a device listed twice; keep one of them"))
+                f"service {shown(svc.name)} maps devices `{first[path]}` and `{device}`, which are both "
+                f"{shown(path)} on {ROBOTS}: Compose v1 refuses a device listed twice; keep one of them"))
 
 
 @rule("secret-undefined", "error", "host", "Every `secrets:` entry names a variable the robot has.",
@@ -508,7 +517,7 @@ def _gpu_unavailable(ctx: Context, host: Host) -> Iterator[Problem]:
     for svc in ctx.spec.services:
         if svc.gpu and not host.gpu:
             yield problem_at(ctx.spec, ("services", svc.name, "gpu"), (
-                f"service {svc.name} wants a GPU, but the inventory gives none (`gpu: true`) to {ROBOTS}: "
+                f"service {shown(svc.name)} wants a GPU, but the inventory gives none (`gpu: true`) to {ROBOTS}: "
                 "it is deployed there without a GPU reservation; make sure it can run on the CPU"))
 
 
@@ -531,14 +540,23 @@ def _host_changes_no_root(ctx: Context, host: Host) -> Iterator[Problem]:
 @rule("compose-invalid", "error", "release",
       "The rendered compose.yml is valid YAML with a `services` mapping, brings in nothing `check` cannot see "
       "(`include`, `extends` from a file, `volumes_from`, `env_file`, a `container:NAME` namespace) and sets "
-      "only namespaced sysctls.",
+      "only namespaced sysctls, and has no bare text that YAML 1.2 (Compose v2) reads as a number (`1e3`).",
       "Fix the compose template (the fleet file's `templates:` folder, or report a bug in the built-in one).")
 def _compose_invalid(ctx: Context, t: Target) -> Iterator[Problem]:
+    where = ("templates",) if ctx.spec.templates else ()
     if t.compose_error or not isinstance((t.compose or {}).get("services"), dict):
         why = t.compose_error or "it has no `services:` mapping"
-        yield problem_at(ctx.spec, ("templates",) if ctx.spec.templates else (), (
+        yield problem_at(ctx.spec, where, (
             f"the compose.yml rendered for {ROBOTS} is not a valid compose file ({why}): fix the compose template"))
         return
+    # A compose template's output: the built-in one quotes every string (render.yaml_str, _Dumper).
+    numbers = _plain_numbers(t.raw_compose, t.release) if t.release.compose_data is None else []
+    if numbers:
+        (line, text), more = numbers[0], f" (and {len(numbers) - 1} more)" if len(numbers) > 1 else ""
+        yield problem_at(ctx.spec, where, (
+            f"the compose.yml rendered for {ROBOTS} has {shown(text)} unquoted at line {line}{more}: Compose v1 "
+            "(YAML 1.1) reads it as text, Compose v2 (YAML 1.2) as a number, and refuses it where text is "
+            "required (`hostname`, `extra_hosts` keys); quote it in the compose template"))
     # The fleet's `compose:` refuses these at load (fleet.MANAGED_COMPOSE, _check_compose_conflicts);
     # a user's compose template renders them past it, so the rendered file is judged the same way.
     if "include" in (t.compose or {}):
@@ -553,6 +571,37 @@ def _compose_invalid(ctx: Context, t: Target) -> Iterator[Problem]:
 
 
 _SUSPECT_KEYS = frozenset({"extends", "volumes_from", "env_file", "pid", "ipc", "sysctls"})
+_STR_TAG = "tag:yaml.org,2002:str"
+
+
+def _plain_numbers(raw: Any, release: RenderedRelease) -> list[tuple[int, str]]:
+    """(line, text) of each plain scalar in the compose.yml that PyYAML, as Compose v1, read as
+    text and a YAML 1.2 reader takes for a number (files.reads_as_number). Its events, which keep
+    a scalar's quoting, are read only when some text of the parsed file could be one."""
+    suspects = {text for text in _texts(raw) if reads_as_number(text)}    # ~0.1 ms a robot, a parse ~3 ms
+    if not suspects:
+        return []
+    text = next(f.content for f in release.files if f.name == "compose.yml")
+    resolver = yaml.resolver.Resolver()
+    return [(event.start_mark.line + 1 if event.start_mark else 0, event.value)
+            for event in yaml.parse(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+            if isinstance(event, yaml.ScalarEvent) and event.implicit[0] and event.value in suspects
+            and resolver.resolve(yaml.ScalarNode, event.value, (True, False)) == _STR_TAG]
+
+
+def _texts(value: Any) -> list[str]:
+    """Every string of parsed YAML, keys too (a loop, not nested generators: a third of the time)."""
+    stack, found = [value], []
+    while stack:
+        item = stack.pop()
+        if isinstance(item, str):
+            found.append(item)
+        elif isinstance(item, dict):
+            stack += item
+            stack += item.values()
+        elif isinstance(item, list):
+            stack += item
+    return found
 
 
 @rule("dds-peers-missing", "error", "release", "Off host networking, the DDS config lists explicit unicast peers.",
@@ -591,7 +640,7 @@ def _domain_injected(ctx: Context, t: Target) -> Iterator[Problem]:
         raw = env_of(svc).get("ROS_DOMAIN_ID", "") if isinstance(svc, dict) else ""
         if not re.search(r"\$\{?ROS_DOMAIN_ID\b", raw):
             yield problem_at(ctx.spec, ("services", name), (
-                f"service {name} of {ROBOTS} does not take ROS_DOMAIN_ID from .env (`${{ROS_DOMAIN_ID}}`): "
+                f"service {shown(name)} of {ROBOTS} does not take ROS_DOMAIN_ID from .env (`${{ROS_DOMAIN_ID}}`): "
                 "a hard-coded or missing ID puts robots on the wrong domain; fix the compose template"))
 
 
@@ -610,7 +659,7 @@ def _image_unversioned(ctx: Context, t: Target, name: str, svc: dict) -> Finding
     tag = last.rpartition(":")[2] if ":" in last else ""
     if not tag or tag.lower() == "latest":
         yield ("services", name, "image"), (
-            f"service {name} of {ROBOTS} would run image `{image or '(none)'}`, which has no version "
+            f"service {shown(name)} of {ROBOTS} would run image `{image or '(none)'}`, which has no version "
             "tag (or `latest`): it cannot be rolled back to; keep `:<version>` in the compose template")
 
 
@@ -624,8 +673,8 @@ def _healthcheck_missing(ctx: Context, t: Target, name: str, svc: dict) -> Findi
     test = check.get("test") if isinstance(check, dict) else None
     if not isinstance(check, dict) or check.get("disable") or test in (["NONE"], "NONE", None):
         yield ("services", name, "healthcheck"), (
-            f"service {name} has no health check: a crashed-but-running node looks healthy to the deploy gate and "
-            "to depends_on; add `healthcheck:` (or `healthcheck: image` to trust the image's HEALTHCHECK)")
+            f"service {shown(name)} has no health check: a crashed-but-running node looks healthy to the deploy gate "
+            "and to depends_on; add `healthcheck:` (or `healthcheck: image` to trust the image's HEALTHCHECK)")
 
 
 @rule("restart-missing", "error", "service", "Every service has a restart policy.",
@@ -634,7 +683,7 @@ def _restart_missing(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
     restart = str(svc.get("restart", "no"))
     if restart not in ("always", "unless-stopped") and not restart.startswith("on-failure"):
         yield ("services", name, "restart"), (
-            f"service {name} of {ROBOTS} has restart policy `{restart}` in the rendered compose.yml: "
+            f"service {shown(name)} of {ROBOTS} has restart policy `{restart}` in the rendered compose.yml: "
             "it stays down after a crash or reboot; set `restart: unless-stopped` (or always)")
 
 
@@ -652,8 +701,8 @@ def _compose_ref_undefined(ctx: Context, t: Target, name: str, svc: dict) -> Fin
             source = entry.get("source") if isinstance(entry, dict) else entry
             if not isinstance(source, str) or source not in defined:
                 yield ("services", name, "compose", kind, i), (
-                    f"service {name} of {ROBOTS} uses {kind[:-1]} {shown(source)}, which the compose.yml does not "
-                    f"define at the top level (compose would refuse the file): use {instead} instead")
+                    f"service {shown(name)} of {ROBOTS} uses {kind[:-1]} {shown(source)}, which the compose.yml does "
+                    f"not define at the top level (compose would refuse the file): use {instead} instead")
 
 
 def _brings_in(ctx: Context, t: Target) -> Iterator[Problem]:
@@ -669,7 +718,7 @@ def _brings_in(ctx: Context, t: Target) -> Iterator[Problem]:
 def _brought_in(ctx: Context, name: str, svc: Mapping[str, Any]) -> Iterator[Problem]:
     for key, what in _outside_keys(svc):
         yield _service_problem(ctx.spec, name, ("services", name, "compose", key), (
-            f"service {name} of {ROBOTS} has `{key}` in the rendered compose.yml: it brings in {what}, which "
+            f"service {shown(name)} of {ROBOTS} has `{key}` in the rendered compose.yml: it brings in {what}, which "
             "`check` never sees; write the service's own keys instead"))
 
 
@@ -695,7 +744,7 @@ def _refused_sysctls(name: str, svc: Mapping[str, Any]) -> Finding:
         why = _SYSCTL_REFUSED.get(sysctl_refusal(sysctl, host_net, ipc_host))
         if why:
             yield ("services", name, "compose", "sysctls", at), (
-                f"service {name} of {ROBOTS} sets sysctl {shown(sysctl)}, which {why}; set it on the robot")
+                f"service {shown(name)} of {ROBOTS} sets sysctl {shown(sysctl)}, which {why}; set it on the robot")
 
 
 _SYSCTL_REFUSED = {
@@ -715,7 +764,7 @@ def _log_rotation(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
         return
     if driver != "json-file" or "max-size" not in options or "max-file" not in options:
         yield ("logging",), (
-            f"service {name} of {ROBOTS} logs with `{driver}` without max-size/max-file: ROS logs can fill the "
+            f"service {shown(name)} of {ROBOTS} logs with `{driver}` without max-size/max-file: ROS logs can fill the "
             "robot's disk; render `logging: {driver: json-file, options: {max-size: 10m, max-file: \"3\"}}`")
 
 
@@ -727,7 +776,7 @@ def _privileged(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
         return
     for key, what in _privileges(svc):
         yield ("services", name, key), (
-            f"service {name} {what}: it can do anything to the robot; map devices with `devices:` "
+            f"service {shown(name)} {what}: it can do anything to the robot; map devices with `devices:` "
             "instead (their groups are added for you), or set `allow_privileged: true` to say it is on purpose")
 
 
@@ -795,7 +844,7 @@ def _docker_socket(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
     if socket:
         path = socket[0]
         yield ("services", name, "volumes"), (
-            f"service {name} mounts {_shown_mount(*socket)}"
+            f"service {shown(name)} mounts {_shown_mount(*socket)}"
             f"{'' if path.endswith('.sock') else ', which holds the engine socket'}"
             ": whoever controls the container controls the robot's container engine, which is root on the robot; "
             "remove the mount, or set `allow_privileged: true` to say it is on purpose")
@@ -822,7 +871,7 @@ def _device_root(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
         what = _root_device(path)
         if what:
             yield ("services", name, "devices"), (
-                f"service {name} maps {path} on {ROBOTS}, {what}: whoever controls the container is root on the "
+                f"service {shown(name)} maps {path} on {ROBOTS}, {what}: whoever controls the container is root on the "
                 "robot; map only the device the node needs, or set `allow_privileged: true` to say it is on purpose")
 
 
@@ -884,7 +933,7 @@ def _mount_system_writable(ctx: Context, t: Target, name: str, svc: dict) -> Fin
         # the engine's socket folders (/, /var, /run) are docker-socket-mounted's finding
         if folder and not _holds_engine_socket(source):
             yield ("services", name, "volumes"), (
-                f"service {name} mounts {_shown_mount(source, written)} writable{_holds(source, folder)}: a "
+                f"service {shown(name)} mounts {_shown_mount(source, written)} writable{_holds(source, folder)}: a "
                 f"container that writes {folder} is root on the robot; mount it `:ro`, or set "
                 "`allow_privileged: true` to say it is on purpose")
 
@@ -1063,8 +1112,8 @@ def _shm_too_small(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
     size = _size_or_none(svc.get("shm_size", "64m"))
     if size is None or size < 256 * MB:
         yield ("ros", "shm_size"), (
-            f"service {name} of {ROBOTS} gets {svc.get('shm_size', '64m (the Docker default)')} of /dev/shm: DDS "
-            "shared-memory transport needs at least 256 MB; set `ros.shm_size: 512m`")
+            f"service {shown(name)} of {ROBOTS} gets {svc.get('shm_size', '64m (the Docker default)')} of /dev/shm: "
+            "DDS shared-memory transport needs at least 256 MB; set `ros.shm_size: 512m`")
 
 
 @rule("shm-small-for-images", "warning", "service", "shm_size is at least 512 MB for services with image topics.",
@@ -1075,7 +1124,7 @@ def _shm_small_for_images(ctx: Context, t: Target, name: str, svc: dict) -> Find
     size = _size_or_none(svc.get("shm_size", "64m"))
     if image_topics and not _shares_ipc(svc) and size is not None and 256 * MB <= size < 512 * MB:
         yield ("services", name, "topics"), (
-            f"service {name} publishes image topics ({', '.join(image_topics)}) with only "
+            f"service {shown(name)} publishes image topics ({', '.join(image_topics)}) with only "
             f"{svc.get('shm_size')} of /dev/shm: set `ros.shm_size: 512m` or more")
 
 
@@ -1106,7 +1155,7 @@ def _device_unstable(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
         path = _mount_source(entry)
         if not path.startswith(STABLE_DEVICE_PREFIXES):
             yield ("services", name, "devices"), (
-                f"service {name} maps {path} on {ROBOTS}: names like /dev/ttyUSB0 change with USB enumeration "
+                f"service {shown(name)} maps {path} on {ROBOTS}: names like /dev/ttyUSB0 change with USB enumeration "
                 "order across boots; give the device a udev symlink (inventory `udev:`) and use /dev/robot/<name>")
 
 
@@ -1118,7 +1167,7 @@ def _resources_missing(ctx: Context, t: Target, name: str, svc: dict) -> Finding
                if not any(k in svc or k in limits for k in keys)]
     if missing:
         yield ("services", name, "resources"), (
-            f"service {name} has no {' or '.join(missing)} limit: one runaway node can starve the "
+            f"service {shown(name)} has no {' or '.join(missing)} limit: one runaway node can starve the "
             "rest of the robot; set `resources: {memory: 512m, cpus: 1.0}`")
 
 
@@ -1128,7 +1177,7 @@ def _user_root(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
     user = str(svc.get("user", "")).split(":")[0]
     if user in ("root", "0"):
         yield ("services", name, "user"), (
-            f"service {name} runs as root: set a non-root `user:` such as \"1000:1000\" "
+            f"service {shown(name)} runs as root: set a non-root `user:` such as \"1000:1000\" "
             "(device groups are added from `devices:`)")
 
 
@@ -1137,7 +1186,7 @@ def _user_root(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
 def _user_unset(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
     if "user" not in svc:
         yield ("services", name), (
-            f"service {name} sets no `user:`: it runs as the image's USER, root unless the image says "
+            f"service {shown(name)} sets no `user:`: it runs as the image's USER, root unless the image says "
             "otherwise; set `user:` or make sure the image is non-root")
 
 
@@ -1150,7 +1199,7 @@ def _gpu_reservation(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
         state = "reserves no GPU although it is a gpu service" if wanted else "reserves a GPU the robot does not have"
         outcome = "run it without the GPU" if wanted else "fail to start it"
         yield ("services", name, "gpu"), (
-            f"service {name} on {ROBOTS} {state}: compose would {outcome}; fix the compose template")
+            f"service {shown(name)} on {ROBOTS} {state}: compose would {outcome}; fix the compose template")
 
 
 def _reserves_gpu(svc: Mapping[str, Any]) -> bool:

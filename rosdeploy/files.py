@@ -14,6 +14,7 @@ symbolic link pointing out).
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -36,12 +37,54 @@ MAX_BYTES = 50 * 1024 * 1024      # a release is uploaded whole on every deploy
 MAX_TEMPLATE_BYTES = 1 << 20
 
 
+# Plain scalars some reader of a written file takes for a number, though PyYAML (YAML 1.1) writes
+# them bare as strings: YAML 1.2 (Compose v2's go-yaml v3, yaml-cpp) reads `1e3`, `0o17`, `.5`;
+# go-yaml v3 first drops every `_` (`1_e3`, `0_x1`) and takes `0X1F`, `0B1`, `0O17`; ROS 2's
+# rcl_yaml_param_parser reads a plain scalar with C's strtol/strtod (hex floats, `inf`, `nan`,
+# `infinity` in any case). Matched after dropping `_`, case-insensitively.
+_NUMBER_START = frozenset("0123456789+-.")
+_NUMBER = re.compile(r"""[-+]?(?:
+      0x[0-9a-f]*\.?[0-9a-f]*(?:p[-+]?[0-9]+)?                # hex int; C's hex float
+    | 0o[0-7]+ | 0b[01]+
+    | (?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:e[-+]?[0-9]+)?       # decimal int and float: 1, 1., .5, 1e3
+    | [0-9]+(?::[0-5]?[0-9])+(?:\.[0-9]*)?                     # YAML 1.1 base 60: 1:20
+    | \.?(?:inf|infinity|nan)
+)""", re.X | re.I)
+# Plain words YAML 1.1 (y, n, on, off, yes, no: Compose v1, ROS 2's parser), YAML 1.2 or strtod
+# read as a bool, null or float; in any case: a reader that takes `True` may take `TRUE`.
+_WORDS = frozenset("y n yes no on off true false null ~ inf infinity nan".split())
+_LONGEST_WORD = max(map(len, _WORDS))
+
+
+def reads_as_number(text: str) -> bool:
+    """True when some reader takes `text`, written as a plain scalar, for a number (_NUMBER)."""
+    return text[:1] in _NUMBER_START and _NUMBER.fullmatch(text.replace("_", "")) is not None
+
+
+def reads_as_other(text: str) -> bool:
+    """True when some YAML reader (1.1 or 1.2) or ROS 2's parameter parser would read `text`,
+    written as a plain scalar, as something other than this string: write it quoted. Most
+    strings are decided by their first character and length, with no regex."""
+    if not text:
+        return True    # a null
+    if text[0] in _NUMBER_START:
+        return reads_as_number(text)
+    return len(text) <= _LONGEST_WORD and text.lower() in _WORDS
+
+
+def represent_text(dumper: yaml.SafeDumper, data: str) -> yaml.ScalarNode:
+    """A string for a YAML Dumper: quoted when reads_as_other (the emitter may still choose double
+    quotes where single ones cannot hold it). A str subclass the loader made (an `!unsafe`
+    scalar, a decrypted vault value) is written as the text it is, as Ansible's to_yaml writes it."""
+    return dumper.represent_scalar("tag:yaml.org,2002:str", data, style="'" if reads_as_other(data) else None)
+
+
 class _Dumper(yaml.SafeDumper):
-    """YAML of an inventory value: a str subclass the loader made (an `!unsafe` scalar, a
-    decrypted vault value) is written as the text it is, as Ansible's to_yaml writes it."""
+    """YAML of an inventory value, which a reader of YAML 1.2 or ROS 2's parameter parser may read."""
 
 
-_Dumper.add_multi_representer(str, yaml.SafeDumper.represent_str)
+_Dumper.add_representer(str, represent_text)
+_Dumper.add_multi_representer(str, represent_text)
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,10 @@ so the key reference in the README (The fleet file) and the code read the same.
 """
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import difflib
+import functools
 import glob
 import io
 import math
@@ -908,7 +910,7 @@ def _mount(r: Reader, kp: KeyPath, value: Any) -> Any:
     taken = managed_mount(target)
     if taken:
         raise Invalid(f"{target} is where rosdeploy mounts {taken} itself: choose another container path")
-    problem = proc_mount_problem(target)
+    problem = proc_mount_problem(target, source)
     if problem:
         raise Invalid(problem)
     return f"{source}:{target}:{mode}"
@@ -921,12 +923,19 @@ PROC_MOUNTS_ALLOWED = frozenset({"/proc/cpuinfo", "/proc/diskstats", "/proc/memi
                                  "/proc/sys/kernel/ns_last_pid", "/proc/sys/crypto/fips_enabled"})
 
 
-def proc_mount_problem(target: str) -> str | None:
-    """Why a mount at this container path would stop the container from being created, or None."""
+def proc_mount_problem(target: str, source: str | None = None) -> str | None:
+    """Why a mount at this container path would stop the container from being created (or hide
+    the kernel's sysfs from it), or None. `source`: a bind mount's path on the robot (None: a file)."""
     if (target == "/proc" or target.startswith("/proc/")) and target not in PROC_MOUNTS_ALLOWED:
         return (f"{target} is in /proc, where the container runtime (runc) refuses a mount: the container "
                 "would not be created; mount it elsewhere (a kernel setting goes in `compose: {sysctls: ...}`)")
-    return None
+    if not (target == "/sys" or target.startswith("/sys/")) or source == target:
+        return None     # the robot's own sysfs path at its place (/sys/class/gpio): the container's sysfs has it
+    same = f", or mount the robot's own {target} there ({target}:{target})" if source is not None else ""
+    if target == "/sys":
+        return f"a mount at /sys would hide the container's sysfs (the kernel's devices): mount it elsewhere{same}"
+    return (f"{target} is in /sys, the container's read-only sysfs, where the container runtime (runc) cannot "
+            f"create a mount point: the container would not be created; mount it elsewhere{same}")
 
 
 def normal_path(path: str) -> str:
@@ -1132,7 +1141,75 @@ def _compose_passthrough(r: Reader, kp: KeyPath, value: Any) -> Any:
     if isinstance(value, dict):
         _compose_schema(r, kp, {k: v for k, v in value.items() if k not in MANAGED_COMPOSE})
         _compose_tmpfs(r, kp + ("tmpfs",), value.get("tmpfs"))
+        value = _compose_numbers(r, kp, value)
     return value
+
+
+# How Compose reads a string in a key whose schema type is "number or string" (the string is
+# for `${VAR}`): v2 casts it (strconv.ParseInt; go-units' RAMInBytes for a size) and refuses
+# the file when it is no number ("failed to cast to expected type"); v1 hands it to docker-py,
+# which refuses a string where it wants an int, and reads cpu_quota's and cpu_period's as a
+# duration (where "50000" crashes it). Only a number written as one reads the same in both.
+_COMPOSE_SIZES = frozenset({"mem_limit", "mem_reservation", "memswap_limit", "shm_size"})
+_MICROSECONDS = frozenset({"cpu_quota", "cpu_period", "cpu_rt_runtime", "cpu_rt_period"})
+_GO_INT = re.compile(r"[-+]?[0-9]+")     # strconv.ParseInt(s, 10, 64): ASCII digits, no `_`, no spaces
+_INT64 = 2**63
+
+
+@functools.cache
+def compose_number_keys() -> Mapping[str, str]:
+    """The `compose:` keys the Compose schema types as a number or a string (those rosdeploy
+    renders left out) -> how Compose reads the string: "size" or "integer" (`cpus`, the one float, is
+    rendered from `resources.cpus`)."""
+    known = _compose_schema_data()["definitions"]["service"]["properties"]
+    out = {}
+    for key, prop in known.items():
+        kinds = prop.get("type") if isinstance(prop, dict) else None
+        if key not in MANAGED_COMPOSE and isinstance(kinds, list) and "string" in kinds \
+                and {"number", "integer"} & set(kinds):
+            out[key] = "size" if key in _COMPOSE_SIZES else "integer"
+    return out
+
+
+def _compose_numbers(r: Reader, kp: KeyPath, extra: dict) -> dict:
+    """`extra` with the numbers written as strings (`pids_limit: "12"`) written as numbers; a string
+    that is none is refused, unless it is an interpolation the robot's Compose fills in."""
+    interpolated = r.raw(kp[:-1] + ("compose_interpolate",)) is True
+    out = dict(extra)
+    for key, kind in compose_number_keys().items():
+        value = extra.get(key)
+        if key not in extra or isinstance(value, bool) or (interpolated and isinstance(value, str) and "$" in value):
+            continue     # a boolean is the schema's to refuse; `${VAR}` is the robot's Compose's to judge
+        try:
+            out[key] = _compose_number(value, kind, key in _MICROSECONDS)
+        except ValueError as exc:
+            hint = "" if interpolated or not (isinstance(value, str) and "$" in value) else (
+                " (to have the robot's Compose fill in `${VAR}`, set `compose_interpolate: true`)")
+            r.error(kp + (key,), f"{shown(value)} is not {exc}: Compose reads {key} as one{hint}")
+    return out
+
+
+def _compose_number(value: Any, kind: str, microseconds: bool = False) -> Any:
+    """The value as Compose v1 and v2 both read it; ValueError("what it must be") when they cannot."""
+    if kind == "size":
+        if isinstance(value, str) and (value != value.strip() or not _size_ok(value)):
+            raise ValueError("a size in bytes, e.g. 512m or 1g")
+        return value
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    elif isinstance(value, str) and _GO_INT.fullmatch(value):
+        value = int(value)
+    if not isinstance(value, int) or not -_INT64 <= value < _INT64:
+        raise ValueError("a whole number of microseconds, e.g. 950000" if microseconds else "a whole number, e.g. 100")
+    return value
+
+
+def _size_ok(text: str) -> bool:
+    try:
+        size_bytes(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _tmpfs_targets(tmpfs: Any) -> list[tuple[KeyPath, str]]:
@@ -1270,9 +1347,12 @@ TOP = {
 # ---------------------------------------------------------------- loading
 
 def load_fleet(path: str | Path, *, inventory: str | None = None, version: str | None = None) -> FleetSpec:
-    """Read and validate a fleet file. `inventory` (-i) and `version` (--version) override the file's keys."""
+    """Read and validate a fleet file. `inventory` (-i) and `version` (--version) override the file's keys.
+    The spec's `warnings` are the file's: a number YAML 1.1 reads as octal (`017`, read as 15, as
+    Ansible reads it: a port or an id the user did not mean; yamlsrc._octal_warning)."""
+    found: list[Problem] = []
     try:
-        doc = yamlsrc.load(path)
+        doc = yamlsrc.load(path, warnings=found)
     except InputError as exc:
         raise FleetSpecError(exc.problems) from exc
     r = Reader(doc)
@@ -1289,7 +1369,7 @@ def load_fleet(path: str | Path, *, inventory: str | None = None, version: str |
         readiness.check_services(top["ready"], dict.fromkeys(r.names(("services",), top["services"])), r, ("ready",))
     if r.problems:
         raise FleetSpecError(sorted(r.problems, key=lambda p: (p.file != doc.path, p.line or 0)))
-    return _build(doc, top)
+    return dataclasses.replace(_build(doc, top), warnings=tuple(found))
 
 
 def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[str, Any]:
@@ -1538,11 +1618,7 @@ def _check_compose_formats(r: Reader, where: KeyPath, extra: dict) -> None:
     grace = extra.get("stop_grace_period")
     if isinstance(grace, str) and not _GO_DURATION.fullmatch(grace.strip()):
         r.error(where + ("stop_grace_period",), f"{shown(grace)} is not a duration: e.g. 10s, 1m30s")
-    for key in ("cpu_rt_runtime", "cpu_rt_period"):
-        value = extra.get(key)
-        if isinstance(value, str) and not value.strip().isdigit():
-            r.error(where + (key,), f"{shown(value)}: Compose v2 reads {key} as a whole number of microseconds; "
-                                    "write it so, e.g. 950000")
+    # cpu_rt_runtime and cpu_rt_period: a whole number, as each key of compose_number_keys (_compose_numbers)
     for i, port in enumerate(extra["ports"] if isinstance(extra.get("ports"), list) else []):
         problem = short_port_problem(port) if isinstance(port, str) else None
         if any(n > 65535 for n in _port_numbers(port)):

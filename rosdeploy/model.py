@@ -196,6 +196,8 @@ class FleetSpec:
     files: tuple[RobotFile, ...] = ()   # per-robot files (`files:`), rendered into every release
     # line of every key path in the fleet file, so checks run after loading can say file:line
     lines: Mapping[tuple, int] = field(default_factory=frozen_map, repr=False, compare=False)
+    # the file's warnings (errors.Problem): a number YAML 1.1 reads as octal; validate and check show them
+    warnings: tuple[Any, ...] = field(default=(), repr=False, compare=False)
 
     def service(self, name: str) -> Service:
         return next(s for s in self.services if s.name == name)

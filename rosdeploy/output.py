@@ -18,7 +18,8 @@ import re
 import secrets
 import sys
 import threading
-from typing import Any, Callable, Iterable, Sequence, TextIO
+from types import CodeType, FunctionType, ModuleType
+from typing import Any, Callable, Iterable, Mapping, Sequence, TextIO
 
 from rosdeploy.errors import UNSEEN
 
@@ -45,6 +46,7 @@ class Output:
         self._held: dict | None = None
         self._secrets: set[str] = set()
         self._pattern: re.Pattern[str] | None = None
+        self._wording: tuple[int, tuple[str, ...]] | None = None   # (modules looked at, _ours())
         self._lock = threading.Lock()   # progress lines come from many robot threads
         self._live: list[str] = []      # lines drawn at the bottom of the terminal (see live)
 
@@ -59,36 +61,76 @@ class Output:
         # check warns about vault values that short.
         self._secrets.update(s for s in secrets if s and len(s) >= 4)
         self._pattern = None
+        self._wording = None
 
     def masked(self, text: str) -> str:
         """Every secret replaced. One of LONG_SECRET characters or more anywhere: it is no word of
         ours. A shorter one only where it stands as a whole word, not inside a word or a path
-        (`_`, `-`, `.`, `/` join them; a full stop ends a word): masked inside them it
-        garbled them, and gave it away: password `wrong` made "cannot decrypt: ******** vault
-        password (--vault-password-file case2/********pw)". A short secret equal to a whole word
-        of a message is still masked there; a secret that short is a weak one (check warns)."""
+        (`_`, `-`, `.`, `/` join them; a full stop ends a word): masked inside them it garbled
+        them, and gave it away. Nor where it is a word of rosdeploy's own wording (see _ours):
+        password `wrong` made "cannot decrypt: ******** vault password", which told it, as a mask
+        in text everyone can read in the source tells the word it hides; left as it is, that text
+        is the same whatever the password, so it tells nothing."""
+        return self._mask(text, 0)
+
+    def _mask(self, text: str, kept: int) -> str:
+        """`text` masked but for its first `kept` characters (a line's head, see _masked_text)."""
         if not self._secrets:
             return text
-        return self._compiled().sub(MASK, text)
+        spans: list[tuple[int, int]] | None = None
+
+        def replace(match: re.Match[str]) -> str:
+            nonlocal spans
+            if match.end() <= kept:
+                return match[0]
+            if len(match[0]) < LONG_SECRET:
+                spans = self._our_spans(text) if spans is None else spans
+                if any(start <= match.start() and match.end() <= end for start, end in spans):
+                    return match[0]
+            return MASK
+        return self._compiled().sub(replace, text)
 
     def _compiled(self) -> re.Pattern[str]:
         if self._pattern is None:
-            parts = [re.escape(s) if len(s) >= LONG_SECRET else rf"(?<![\w./-]){re.escape(s)}(?![\w/-]|\.\w)"
+            parts = [re.escape(s) if len(s) >= LONG_SECRET else _whole_word(s)
                      for s in sorted(self._secrets, key=len, reverse=True)]
             self._pattern = re.compile("|".join(parts))
         return self._pattern
+
+    def _our_spans(self, text: str) -> list[tuple[int, int]]:
+        """Where `text` holds a piece of rosdeploy's own wording that a short secret is a word of."""
+        spans = []
+        for piece in self._ours():
+            at = text.find(piece)
+            while at >= 0:
+                spans.append((at, at + len(piece)))
+                at = text.find(piece, at + 1)
+        return spans
+
+    def _ours(self) -> tuple[str, ...]:
+        """The literal text of rosdeploy's messages (the string constants of its loaded code) that
+        holds a short secret as a word beside _OTHER_CHARS other visible characters: such a piece,
+        found whole in a line, is our wording there, not a value. A piece that is about the secret
+        alone (`"wrong"`, or `" robot "` of an f-string) is no evidence, so the word stays masked. Looked up again
+        when more of rosdeploy is loaded (commands import modules as they need them)."""
+        loaded = tuple(module for name, module in list(sys.modules.items())
+                       if name == "rosdeploy" or name.startswith("rosdeploy."))
+        if self._wording is None or self._wording[0] != len(loaded):
+            short = [s for s in self._secrets if len(s) < LONG_SECRET]
+            words = re.compile("|".join(_whole_word(s) for s in short)) if short else None
+            pieces = () if words is None else tuple(
+                piece for piece in _literals(loaded)
+                if words.search(piece) and len("".join(words.sub("", piece).split())) >= _OTHER_CHARS)
+            self._wording = (len(loaded), tuple(sorted(pieces, key=len, reverse=True)))
+        return self._wording[1]
 
     def _masked_text(self, text: str) -> str:
         """Human text masked, but for the `error:` / `warning[rule]` a line starts with, which
         scripts grep for: a vault password `error` made every error line `********: ...`. A
         secret running past that head is masked whole, head included. Elsewhere in the text a
-        secret equal to one of our words is masked (a secret `error` gives `1 ********(s)`):
-        the line stays readable, and the head it keeps is written whatever the secrets are."""
+        secret equal to one of our words is masked unless it is part of our wording (see masked)."""
         head = _HEAD.match(text)
-        if head is None or not self._secrets:
-            return self.masked(text)
-        end = head.end()
-        return self._compiled().sub(lambda m: m[0] if m.end() <= end else MASK, text)
+        return self._mask(text, head.end() if head else 0)
 
     # --- writing --------------------------------------------------------------
     def line(self, text: str = "") -> None:
@@ -190,6 +232,53 @@ _MARK = re.compile(f"{_KEY}([0-9]+){_KEY}")
 _CONTROL = re.compile(f"[{UNSEEN}\ud800-\udfff]")
 # The severity a line of ours starts with (after its colour, if painted): kept when masking.
 _HEAD = re.compile(f"(?:{_KEY}[0-9]+{_KEY})?(?:error|warning|info)(?:: |\\[[a-z0-9-]+\\] )")
+
+
+# Visible characters beside a short secret that make a piece of our wording evidence (Output._ours):
+# `" robot(s) to "`, `"/<robot>/"` are; `" robot "`, `"robot:"` would leave every plain one unmasked.
+_OTHER_CHARS = 3
+
+
+def _whole_word(secret: str) -> str:
+    """A short secret as a whole word: not inside a word or a path (see Output.masked)."""
+    return rf"(?<![\w./-]){re.escape(secret)}(?![\w/-]|\.\w)"
+
+
+def _literals(modules: Iterable[ModuleType]) -> set[str]:
+    """The string constants of `modules`' functions, methods and classes (their message wording,
+    f-strings' fixed parts included), and their UPPER_CASE module constants (HOW_TO_GIVE_PASSWORD).
+    No other module variable: one may hold a value read at run time."""
+    found: set[str] = set()
+    seen: set[int] = set()
+
+    def code(obj: CodeType) -> None:
+        for const in obj.co_consts:
+            if isinstance(const, str):
+                found.add(const)
+            elif isinstance(const, CodeType):
+                code(const)
+
+    def walk(names: Mapping[str, Any], owner: str) -> None:
+        for name, value in list(names.items()):
+            if id(value) in seen:
+                continue
+            seen.add(id(value))
+            if isinstance(value, (staticmethod, classmethod)):
+                value = value.__func__
+            if isinstance(value, property):
+                for part in (value.fget, value.fset):
+                    if isinstance(part, FunctionType):
+                        code(part.__code__)
+            elif isinstance(value, FunctionType) and value.__module__ == owner:
+                code(value.__code__)
+            elif isinstance(value, type) and value.__module__ == owner:
+                walk(vars(value), owner)
+            elif isinstance(value, str) and name.isupper():
+                found.add(value)
+
+    for module in modules:
+        walk(vars(module), module.__name__)
+    return found
 
 
 def one_line(value: object) -> str:

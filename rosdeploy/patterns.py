@@ -22,7 +22,12 @@ over SSH to inventory hosts only, so an absent localhost is refused with how to
 add it. A `[` or `]` without its pair is refused (Ansible's split drops it, so
 `~r[` selected every host starting with r), and so is a `~regex` whose matching
 takes more than REGEX_BUDGET seconds (catastrophic backtracking, `~(a+)+b`), and a control
-character (`--limit "$(cat list)"`: Ansible splits on the newline, so a list went out unnoticed).
+character (`--limit "$(cat list)"`: Ansible splits on the newline, so a list went out unnoticed;
+an `@file` line holding one is refused by its line number, the line unquoted: `@/proc/self/environ`
+would have quoted the environment). Globs and regexes are tested against every host and group
+name, so a pattern needing more than MAX_MATCH_WORK such tests is refused (host names are looked
+up, at any count); of the terms that match nothing, the first MAX_SHOWN_TERMS are named (with a
+did-you-mean), the rest counted.
 A subscript past the group's end selects nothing (a warning, as above); one of
 more than MAX_INDEX_DIGITS digits is refused (Python's int() refuses 4300, where
 Ansible fails with an internal error), and so is an `@file` that is not a
@@ -36,7 +41,9 @@ import re
 import stat
 import signal
 import threading
+import warnings as pywarnings
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Callable, Iterator, Mapping, Sequence
 
 from rosdeploy import suggest
@@ -61,8 +68,13 @@ REGEX_BUDGET = 1.0
 MAX_INDEX_DIGITS = 18
 # An `@file` of hosts: 1 MB holds some 50,000 host names; a fifo or /dev/zero would never end.
 MAX_LIMIT_FILE = 1 << 20
-# Unmatched terms a "selects no robot" message explains; the rest are counted.
+# Unmatched terms a "selects no robot" message explains (and warnings name); the rest are counted:
+# each named one costs a did-you-mean against every name (difflib, ~10 ms over 10,000 hosts), so
+# 20,000 of them took minutes.
 MAX_SHOWN_TERMS = 5
+# Glob and regex tests (distinct wildcard terms x host and group names) one pattern may cost: each
+# is ~0.1 microsecond, so this is about a second. 2,000 globs in an @file over 10,000 hosts took 30 s.
+MAX_MATCH_WORK = 10_000_000
 
 
 class _OverBudget(Exception):
@@ -87,17 +99,21 @@ def select(pattern: str | None, hosts: Sequence[str], groups: Mapping[str, Seque
         raise _error(where, f"pattern {shown(pattern)} {what}: give host or group names, e.g. 'site_north:!amr-n2'")
     _refuse_stray_bracket(pattern, where)
     _refuse_huge_index(terms, where)
-    unmatched: list[Problem] = []
+    names = _Names(hosts, groups, where)
+    _refuse_much_work(pattern, terms, names)
     with _budget(pattern if "@" not in pattern else ",".join(terms), where):   # an @file may hold ~regexes
-        chosen = _evaluate(terms, hosts, groups, where, unmatched)
+        chosen, missed = _evaluate(terms, names)
+    unmatched = _unmatched(missed, names, strict=False)
     if warnings is not None:
+        warnings.extend(names.notes)
         warnings.extend(unmatched)
     if not chosen:
         if any(term.strip("&!") in _LOCALHOST for term in terms) and not set(_LOCALHOST) & set(hosts):
             raise _error(where, "localhost is not in the inventory: rosdeploy deploys over SSH to inventory "
                                 "hosts only (no implicit localhost as in Ansible); to target this machine, add "
                                 "it, e.g. `localhost: {ansible_host: 127.0.0.1}`")
-        raise _error(where, f"pattern {shown(pattern)} selects no robot: {_why_nothing(unmatched)}")
+        why = "; ".join([_why_nothing(unmatched, len(missed)), *(note.message for note in names.notes[:1])])
+        raise _error(where, f"pattern {shown(pattern)} selects no robot: {why}")
     order = {name: i for i, name in enumerate(hosts)}
     return tuple(sorted(chosen, key=order.__getitem__))
 
@@ -113,14 +129,15 @@ def _refuse_control(pattern: str, where: str) -> None:
                             "a file and give @FILE")
 
 
-def _why_nothing(unmatched: list[Problem]) -> str:
+def _why_nothing(unmatched: list[Problem], count: int) -> str:
     """The unmatched terms of a pattern that selects nothing, the first few only: a 5,000-character
-    `a1:a2:...` made one message of 100 KB (each term is still a warning line of its own)."""
-    if not unmatched:
+    `a1:a2:...` made one message of 100 KB. `unmatched` is their warnings (the named ones and the
+    count of the rest); `count` how many terms matched nothing."""
+    if not count:
         return "every term names something, but together (&, !, [n]) they leave nothing; loosen the pattern"
-    more = len(unmatched) - MAX_SHOWN_TERMS
+    more = count - MAX_SHOWN_TERMS
     return "; ".join(p.message for p in unmatched[:MAX_SHOWN_TERMS]) + \
-        (f"; and {more} more term(s) that match no host or group" if more > 0 else "")
+        (f"; and {more:,} more term(s) that match no host or group" if more > 0 else "")
 
 
 def split(pattern: str) -> list[str]:
@@ -141,10 +158,24 @@ def _read_files(terms: list[str], where: str) -> list[str]:
         if not term.startswith("@"):
             out.append(term)
             continue
-        for line in filter(None, (text.strip() for text in _limit_file(term[1:], where).split("\n"))):
-            _refuse_stray_bracket(line, where)
-            out.append(line)
+        for number, text in enumerate(_limit_file(term[1:], where).split("\n"), start=1):
+            line = text.strip()
+            if line:
+                _refuse_file_control(term[1:], number, line, where)
+                _refuse_stray_bracket(line, where)
+                out.append(line)
     return out
+
+
+def _refuse_file_control(path: str, number: int, line: str, where: str) -> None:
+    """A control character in an `@file` line is refused as one in `--limit` is (`r2\\0` was the term
+    'r2\\x00'). The line is not quoted: such a file is no host list, and may be a secret's
+    (`@/proc/self/environ` quoted the whole environment)."""
+    found = _CONTROL.search(line)
+    if found:
+        raise _error(where, f"limit file {shown(path)} line {number} holds a control character "
+                            f"({found.group()!r}), so it is no list of host patterns (the line is not shown): "
+                            "give a text file of host patterns, one a line")
 
 
 def _limit_file(path: str, where: str) -> str:
@@ -222,22 +253,59 @@ def _budget(pattern: str, where: str) -> Iterator[None]:
         signal.signal(signal.SIGALRM, signal.SIG_DFL if previous is None else previous)
 
 
-def _evaluate(terms: list[str], hosts: Sequence[str], groups: Mapping[str, Sequence[str]],
-              where: str, unmatched: list[Problem]) -> set[str]:
+@dataclass(frozen=True)
+class _Names:
+    """The names one pattern is matched against, looked up by name (a host or group name costs
+    one dictionary lookup, whatever the count), with each wildcard's compiled test kept."""
+    hosts: Sequence[str]
+    groups: Mapping[str, Sequence[str]]
+    where: str
+    known: frozenset[str] = field(init=False)
+    tests: dict[str, Callable[[str], bool]] = field(default_factory=dict)
+    notes: list[Problem] = field(default_factory=list)   # warnings from compiling a regex
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "known", frozenset(self.hosts))   # frozen: set once, here
+
+    def test(self, base: str) -> Callable[[str], bool]:
+        if base not in self.tests:
+            self.tests[base] = _matcher(base, self.where, self.notes)
+        return self.tests[base]
+
+
+def _refuse_much_work(pattern: str, terms: list[str], names: _Names) -> None:
+    """Refuse a pattern whose globs and regexes need more than MAX_MATCH_WORK name tests."""
+    wildcards = {base for base in (_split_subscript(t.lstrip("&!"))[0] for t in terms) if _is_wildcard(base)}
+    work = len(wildcards) * (len(names.hosts) + len(names.groups))
+    if work > MAX_MATCH_WORK:
+        raise _error(names.where, f"pattern {shown(pattern)} has {len(wildcards):,} globs or regular expressions to "
+                                  f"test against {len(names.hosts) + len(names.groups):,} host and group names: "
+                                  f"more than {MAX_MATCH_WORK:,} tests; list host names (any number is fine), "
+                                  "or use fewer, broader globs such as 'amr-*'")
+
+
+def _is_wildcard(base: str) -> bool:
+    return base.startswith("~") or bool(_GLOB_CHARS & set(base))
+
+
+def _evaluate(terms: list[str], names: _Names) -> tuple[set[str], list[str]]:
+    """The hosts chosen, and the union/intersection terms that match nothing (each once).
+    Raises InventoryError when an exclusion matches nothing."""
     unions = [t for t in terms if t[0] not in "&!"]
     intersections = [t[1:] for t in terms if t[0] == "&"]
     exclusions = [t[1:] for t in terms if t[0] == "!"]
-    errors: list[Problem] = []
-    known = set(hosts)
+    missed: dict[str, None] = {}
+    missed_strict: dict[str, None] = {}
+    found: dict[str, set[str] | None] = {}
 
     def resolve(term: str, strict: bool = False) -> set[str]:
-        if term in known:       # a plain host name is never read as a pattern (Ansible)
+        if term in names.known:       # a plain host name is never read as a pattern (Ansible)
             return {term}
-        found = _match_term(term, hosts, groups, where)
-        if found is None:
-            (errors if strict else unmatched).append(_unmatched(term, hosts, groups, where, strict))
-            return set()
-        return found
+        if term not in found:        # a term repeated 20,000 times is matched once
+            found[term] = _match_term(term, names)
+        if found[term] is None:
+            (missed_strict if strict else missed)[term] = None
+        return found[term] or set()
 
     chosen: set[str] = set()
     for term in unions or ["all"]:
@@ -246,24 +314,27 @@ def _evaluate(terms: list[str], hosts: Sequence[str], groups: Mapping[str, Seque
         chosen &= resolve(term)
     for term in exclusions:
         chosen -= resolve(term, strict=True)
-    if errors:
-        raise InventoryError(errors)
-    return chosen
+    if missed_strict:
+        raise InventoryError(_unmatched(list(missed_strict), names, strict=True))
+    return chosen, list(missed)
 
 
-def _match_term(term: str, hosts: Sequence[str], groups: Mapping[str, Sequence[str]],
-                where: str) -> set[str] | None:
+def _match_term(term: str, names: _Names) -> set[str] | None:
     """Hosts one term names, or None when it names no host and no group at all."""
     base, subscript = _split_subscript(term)
-    matcher = _matcher(base, where)
-    matched_groups = [g for g in groups if matcher(g)]
-    members: list[str] = []
-    for group in matched_groups:
-        members.extend(groups[group])
-    # Ansible looks at host names only when no group matched, or the term is a glob/regex.
-    is_wildcard = base.startswith("~") or "." in base or bool(_GLOB_CHARS & set(base))
-    if not matched_groups or is_wildcard:
-        members.extend(h for h in hosts if matcher(h))
+    if _is_wildcard(base):
+        test = names.test(base)
+        matched_groups = [g for g in names.groups if test(g)]
+        members: list[str] = []
+        for group in matched_groups:
+            members.extend(names.groups[group])
+        members.extend(filter(test, names.hosts))   # a wildcard looks at host names too (Ansible)
+    else:
+        # Ansible looks at host names only when no group matched, or the name holds a `.`.
+        matched_groups = [base] if base in names.groups else []
+        members = list(names.groups[base]) if matched_groups else []
+        if base in names.known and (not matched_groups or "." in base):
+            members.append(base)
     if not matched_groups and not members:
         return None
     if subscript is not None:
@@ -271,15 +342,26 @@ def _match_term(term: str, hosts: Sequence[str], groups: Mapping[str, Sequence[s
     return set(members)
 
 
-def _matcher(base: str, where: str) -> Callable[[str], bool]:
+def _matcher(base: str, where: str, notes: list[Problem] | None = None) -> Callable[[str], bool]:
+    """The test of a glob or `~regex`. A regex Python warns about (`[a&&b]`, `[[:alpha:]]`: read as
+    plain characters today, maybe as set operations later) is a warning of ours in `notes`:
+    Python's own went to stderr with rosdeploy's source line, splitting the output."""
     if base.startswith("~"):
-        try:
-            regex = re.compile(base[1:])
-        except (re.error, OverflowError, RecursionError) as exc:   # `a{99999999999}`: OverflowError
-            raise _error(where, f"invalid regular expression {shown(base)}: {exc}; fix it or use a glob") from exc
+        with pywarnings.catch_warnings(record=True) as caught:
+            pywarnings.simplefilter("always")
+            try:
+                regex = re.compile(base[1:])
+            except (re.error, OverflowError, RecursionError) as exc:   # `a{99999999999}`: OverflowError
+                raise _error(where, f"invalid regular expression {shown(base)}: {exc}; fix it or use a glob") from exc
+        for warned in caught[:1]:
+            if notes is not None:
+                notes.append(Problem(where, None, "", f"regular expression {shown(base)}: {warned.message} (Python "
+                                                      "reads it as plain characters, a later Python may read a set "
+                                                      "operation): escape the character (`\\&`, `\\-`, `\\[`) to match "
+                                                      "it as itself", severity="warning"))
         return lambda name: regex.match(name) is not None
     if _GLOB_CHARS & set(base):
-        return lambda name: fnmatch.fnmatchcase(name, base)
+        return re.compile(fnmatch.translate(base)).match    # type: ignore[return-value]  # a match is truthy
     return lambda name: name == base
 
 
@@ -305,9 +387,23 @@ def _dedupe(names: list[str]) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def _unmatched(term: str, hosts: Sequence[str], groups: Mapping[str, Sequence[str]], where: str,
-               strict: bool) -> Problem:
-    hint = suggest.did_you_mean(term, [*groups, *hosts]) or "check the spelling against the inventory"
+def _unmatched(terms: list[str], names: _Names, strict: bool) -> list[Problem]:
+    """One problem for each of the first MAX_SHOWN_TERMS terms, with its did-you-mean, and one that
+    counts the rest: a suggestion for every term of a 20,000-line @file took minutes, and printed
+    20,000 lines."""
+    found = [_one_unmatched(term, names, strict) for term in terms[:MAX_SHOWN_TERMS]]
+    more = len(terms) - MAX_SHOWN_TERMS
+    if more > 0 and strict:
+        found.append(Problem(names.where, None, "", f"and {more:,} more exclusion(s) that match no host or group"))
+    elif more > 0:
+        found.append(Problem(names.where, None, "", f"and {more:,} more term(s) that match no host or group, "
+                                                    "ignored", severity="warning"))
+    return found
+
+
+def _one_unmatched(term: str, names: _Names, strict: bool) -> Problem:
+    hint = suggest.did_you_mean(term, [*names.groups, *names.hosts]) or "check the spelling against the inventory"
+    where = names.where
     if strict:
         return Problem(where, None, "", f"exclusion {shown(term)} matches no host or group: {hint} (an exclusion "
                                         "that excludes nothing would deploy to the robots meant to be left out)")

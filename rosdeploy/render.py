@@ -30,7 +30,7 @@ from rosdeploy import restarts, rotation
 from rosdeploy.checks import host_problem, parse_env
 from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import InputError, Problem, RenderError, shown
-from rosdeploy.files import FILES_DIR, MAX_TEMPLATE_BYTES, FileRenderer
+from rosdeploy.files import FILES_DIR, MAX_TEMPLATE_BYTES, FileRenderer, reads_as_other, represent_text
 from rosdeploy.fleet import MANAGED_COMPOSE, RESERVED_ENV, size_bytes
 from rosdeploy.inventory.draft import strings
 from rosdeploy.inventory.templating import (HostVars, not_quoted, raw_vars, secret_read, secret_reads,
@@ -195,13 +195,13 @@ def yaml_str(value: Any) -> str:
     return _YAML_UNSAFE.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
 
 
-_YAML11_WORDS = frozenset("y n yes no true false on off null ~".split())
+_BARE_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_.-]*")
 
 
 def yaml_key(value: Any) -> str:
     """A mapping key: bare when YAML 1.1 and 1.2 both read it as this plain string, else quoted."""
     text = str(value)
-    if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]*", text) and text.lower() not in _YAML11_WORDS:
+    if _BARE_KEY.fullmatch(text) and not reads_as_other(text):
         return text
     return yaml_str(text)
 
@@ -346,10 +346,16 @@ class _Static:
 
 
 class _Dumper(getattr(yaml, "CSafeDumper", yaml.SafeDumper)):  # type: ignore[misc]
-    """libyaml's emitter where PyYAML has it; never anchors and aliases (compose v1 chokes on some)."""
+    """libyaml's emitter where PyYAML has it; never anchors and aliases (compose v1 chokes on some).
+    Strings as files.represent_text writes them: Compose v2 reads YAML 1.2, where a bare `1e3` is a
+    number (it refuses `hostname: 1e3`), though PyYAML writes it bare as YAML 1.1's string."""
 
     def ignore_aliases(self, data: Any) -> bool:
         return True
+
+
+_Dumper.add_representer(str, represent_text)
+_Dumper.add_multi_representer(str, represent_text)
 
 
 def _taken_names(builtin: Mapping[str, str]) -> dict[str, str]:
@@ -642,8 +648,8 @@ class Renderer:
             var = image_var(st.service.name)
             if var in owners:
                 raise RenderError([self._problem(("services", st.service.name),
-                                           f"services {owners[var]} and {st.service.name} both map to {var} in .env; "
-                                           "rename one")])
+                                           f"services {shown(owners[var])} and {shown(st.service.name)} both map to "
+                                           f"{var} in .env; rename one")])
             owners[var] = st.service.name
         return tuple(sorted((image_var(st.service.name), st.image) for st in self.statics))
 
@@ -733,8 +739,8 @@ class Renderer:
             path = host.devices.get(logical)
             if path is None:
                 problems.append(_host_problem(host, f"devices.{logical}",
-                                              f"service {svc.name} needs device {shown(logical)}, which the robot's "
-                                              f"devices map does not define"))
+                                              f"service {shown(svc.name)} needs device {shown(logical)}, which the "
+                                              "robot's devices map does not define"))
                 continue
             if not path.startswith("/") or ":" in path or _SPACE.search(path):
                 problems.append(_host_problem(host, f"devices.{logical}",
@@ -780,8 +786,8 @@ class Renderer:
             for name, var in st.secrets:
                 if name in chosen and chosen[name][0] != var:
                     problems.append(self._problem(("services", st.service.name, "secrets", name),
-                                            f"{name} is read from {chosen[name][0]} by service {chosen[name][1]} "
-                                            f"and from {var} here: one .env cannot hold both"))
+                                            f"{name} is read from {chosen[name][0]} by service "
+                                            f"{shown(chosen[name][1])} and from {var} here: one .env cannot hold both"))
                 chosen.setdefault(name, (var, st.service.name))
         reserved = {"COMPOSE_PROJECT_NAME", "ROSDEPLOY_PROJECT", "ROSDEPLOY_VERSION", *RESERVED_ENV} | \
             {image_var(st.service.name) for st in self.statics}
@@ -796,7 +802,7 @@ class Renderer:
                                                    "(which file, profiles, engine), not the service's: "
                                                    "choose another name"))
             elif var not in host.vars:
-                problems.append(_host_problem(host, var, f"service {service} reads secret {name} from var "
+                problems.append(_host_problem(host, var, f"service {shown(service)} reads secret {name} from var "
                                                          f"{shown(var)}, which is not defined for this robot"))
             else:
                 value = host.vars[var]

@@ -80,7 +80,14 @@ def _start(hosts: Sequence[Host], work: Callable[[Host], T], forks: int, stop: t
                 futures[i].set_exception(exc)
 
     for n in range(max(1, min(forks, len(hosts)))):
-        threading.Thread(target=worker, name=f"robot-{n}", daemon=True).start()
+        try:
+            threading.Thread(target=worker, name=f"robot-{n}", daemon=True).start()
+        except RuntimeError:
+            # "can't start new thread" (ulimit -v, a pids limit): the threads started share the
+            # queue, so the run goes on with fewer; with none, the caller says what to do
+            if n == 0:
+                raise
+            break
     return futures
 
 

@@ -44,6 +44,9 @@ _COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
 # `017` for octal 15: the robot would join another ROS domain, ssh another port. Read so all the
 # same, as Ansible does, with a warning. Only these keys: `mode: 0644` is octal on purpose.
 _NUMBER_KEYS = frozenset({"ros_domain_id", "ansible_port", "ansible_ssh_port"})
+# The fleet file is rosdeploy's own, read the same way: its numbers are ports, counts and ids
+# (`ports: [017]`, `vars: {domain: 017}`), so every key's is warned of but a mode's (`mode: 0440`).
+_MODE_KEY = re.compile(r".*mode|umask", re.IGNORECASE)
 _OCTAL = re.compile(r"[-+]?0[0-7_]+")
 _INT_TAG = "tag:yaml.org,2002:int"
 
@@ -73,6 +76,10 @@ class _Constructor(yaml.constructor.SafeConstructor):
     # Whether the text holds a `\u`/`\U` escape: only such an escape builds a string not_text
     # refuses (libyaml refuses the characters written raw), so only then is each string searched.
     escapes = True
+    # Where octal-looking numbers are warned of (load's `duplicates` or `warnings`), and whether at
+    # every key but a mode's (the fleet file) or at the inventory's _NUMBER_KEYS only.
+    octal: list[Problem] | None = None
+    octal_anywhere = False
 
 
 class Unsafe(str):
@@ -133,12 +140,15 @@ def dotted(keypath: KeyPath) -> str:
     return out
 
 
-def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | None = None) -> Doc:
+def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | None = None,
+         warnings: list[Problem] | None = None) -> Doc:
     """Parse one YAML file; any problem becomes an InputError naming file and line.
 
     A duplicate key is an error, unless `duplicates` is given: then, as in Ansible
     (inventories), it is a warning appended there and the last value wins. That list
-    (the inventory's warnings) also gets one for an octal-looking number (_octal_warning).
+    (the inventory's warnings) also gets one for an octal-looking number (_octal_warning)
+    at a key the inventory reads as a number. `warnings` (the fleet file's, whose
+    duplicate keys stay errors) gets one for an octal-looking number at any key but a mode.
 
     Bounded for every caller (fleet file, inventory, vars files, rendered compose files):
     nesting deeper than MAX_DEPTH and alias expansion beyond MAX_EXPANSION times the
@@ -164,6 +174,8 @@ def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | 
     lines: dict[KeyPath, int] = {}
     constructor = _Constructor()
     constructor.escapes = "\\u" in text or "\\U" in text
+    constructor.octal = warnings if warnings is not None else duplicates
+    constructor.octal_anywhere = warnings is not None
     return Doc(path, _build(node, (), lines, path, constructor, duplicates), lines)
 
 
@@ -439,19 +451,29 @@ def _build(node: yaml.Node, keypath: KeyPath, lines: dict[KeyPath, int], path: s
     if isinstance(node, yaml.SequenceNode):
         return [_build(item, keypath + (i,), lines, path, c, duplicates) for i, item in enumerate(node.value)]
     value = _scalar_value(node, keypath, path, c)
-    if duplicates is not None and keypath and keypath[-1] in _NUMBER_KEYS:
-        duplicates.extend(_octal_warning(node, value, keypath, path))
+    if c.octal is not None and node.tag == _INT_TAG and _octal_key(keypath, c.octal_anywhere):
+        c.octal.extend(_octal_warning(node, value, keypath, path, c.octal_anywhere))
     return value
 
 
-def _octal_warning(node: yaml.Node, value: Any, keypath: KeyPath, path: str) -> list[Problem]:
+def _octal_key(keypath: KeyPath, anywhere: bool) -> bool:
+    """Whether an octal-looking number at keypath is likely a mistake (see _NUMBER_KEYS, _MODE_KEY)."""
+    if not anywhere:
+        return bool(keypath) and keypath[-1] in _NUMBER_KEYS
+    key = next((k for k in reversed(keypath) if isinstance(k, str)), "")    # a list item: its list's key
+    return not _MODE_KEY.fullmatch(key)
+
+
+def _octal_warning(node: yaml.Node, value: Any, keypath: KeyPath, path: str, fleet: bool = False) -> list[Problem]:
     """A warning for a plain `017` (read as 15), none for `07` or `0` (the same read either way)."""
     text = node.value if isinstance(node, yaml.ScalarNode) and not node.style and node.tag == _INT_TAG else ""
     if not _OCTAL.fullmatch(text) or int(text.replace("_", ""), 10) == value:
         return []
+    # in the fleet file a quoted number is a string, which a port or a count is not
+    advice = f"write {value}, or {int(text.replace('_', ''), 10)} if that is meant" if fleet else \
+        f"write {value}, or quote it"
     return [Problem(path, node.start_mark.line + 1, dotted(keypath),
-                    f"`{text}` is read as octal ({value}), as Ansible reads it; write {value}, or quote it",
-                    severity="warning")]
+                    f"`{text}` is read as octal ({value}), as Ansible reads it; {advice}", severity="warning")]
 
 
 _SET_TAG = "tag:yaml.org,2002:set"

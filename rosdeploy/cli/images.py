@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Sequence
 
 from rosdeploy.cli.common import add_command, add_fleet_args, path_arg
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
-from rosdeploy.output import Output
+from rosdeploy.output import Output, one_line
 
 if TYPE_CHECKING:   # model.py and images.refs are the handlers' (--help builds this parser)
     from rosdeploy.model import FleetSpec, Host, RenderedRelease
@@ -75,5 +75,5 @@ def cmd_bundle(args: argparse.Namespace, out: Output) -> int:
         return EXIT_OK
     for pin in made.pins.values():
         out.line(f"{pin.ref}  {pin.digest}  ({human_bytes(pin.size)} compressed)")
-    out.line(f"wrote {target} ({human_bytes(size)})")
+    out.line(f"wrote {one_line(target)} ({human_bytes(size)})")
     return EXIT_OK

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 from rosdeploy.cli.common import add_command, add_fleet_args, inventory_targets, path_arg
 from rosdeploy.cli.vault import load_masked
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
-from rosdeploy.output import Output
+from rosdeploy.output import Output, one_line
 
 if TYPE_CHECKING:   # model.py costs 7 ms of dataclasses at import; --help needs none of it
     from rosdeploy.model import Host, RenderedRelease
@@ -107,7 +107,7 @@ def cmd_render(args: argparse.Namespace, out: Output) -> int:
         return EXIT_OK
     out.table(["ROBOT", "RELEASE", "DIGEST", "FILES"],
               [(r.host, r.release_id, r.digest[:16], len(r.files)) for r in releases.values()])
-    out.line(f"wrote {len(releases)} robot(s) to {root}/<robot>/")
+    out.line(f"wrote {len(releases)} robot(s) to {one_line(root)}/<robot>/")   # a newline in --out: still one line
     return EXIT_OK
 
 

@@ -381,7 +381,24 @@ def _each(args: argparse.Namespace, spec: FleetSpec, hosts: Sequence[Host],
     ctx = context(args, spec, lambda host, msg: None)
     if spec.ssh_persist > 0:
         ctx = replace(ctx, connect=kept_connect(spec.ssh_persist))
-    return gather(hosts, lambda h: work(ctx, h), spec.rollout.forks)
+    try:
+        return gather(hosts, lambda h: work(ctx, h), spec.rollout.forks)
+    except RuntimeError as exc:
+        if "can't start new thread" not in str(exc):
+            raise
+        raise _too_many_threads(spec, len(hosts)) from None
+
+
+def _too_many_threads(spec: FleetSpec, robots: int) -> InputError:
+    """A thread per robot, up to `forks`, could not be started (an address-space or pids limit:
+    200 threads x 8 MB of stack under `ulimit -v`): an internal error said nothing of what to do.
+    Read-only commands, so nothing was changed; the threads already started end with the process."""
+    from rosdeploy.errors import Problem
+    forks = min(spec.rollout.forks, robots)
+    return InputError([Problem(spec.path, None, "rollout.forks",
+                               f"cannot start {forks} threads (one per robot read at once): this machine's limits "
+                               "(ulimit -v, ulimit -u, a cgroup's pids.max) allow fewer; lower `rollout.forks` "
+                               "in the fleet file, e.g. to 50, or raise the limit")])
 
 
 def cmd_connections(args: argparse.Namespace, out: Output) -> int:

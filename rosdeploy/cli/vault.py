@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 from rosdeploy.cli.common import add_command, path_arg
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Problem, VaultError, shown
-from rosdeploy.output import Output
+from rosdeploy.output import Output, one_line
 
 if TYPE_CHECKING:
     from rosdeploy import vault as vaultlib
@@ -126,7 +126,7 @@ def _encrypt(args: argparse.Namespace, out: Output) -> int:
         vaultlib.encrypt_file(path, vault, ansible_format=ansible, label=args.encrypt_vault_id)
         done.append({"file": path, "format": "ansible" if ansible else "rosdeploy"})
         if not out.as_json:
-            out.line(f"encrypted {path}" + (" (Ansible's format: ansible-vault reads it)" if ansible else ""))
+            out.line(f"encrypted {one_line(path)}" + (" (Ansible's format: ansible-vault reads it)" if ansible else ""))
     return _done(out, {"encrypted": done})
 
 
@@ -155,7 +155,7 @@ def _decrypt(args: argparse.Namespace, out: Output) -> int:
     for path in args.files:
         vaultlib.decrypt_file(path, vault)
         if not out.as_json:
-            out.line(f"decrypted {path} (plaintext now: keep it out of version control)")
+            out.line(f"decrypted {one_line(path)} (plaintext now: keep it out of version control)")
     return _done(out, {"decrypted": list(args.files)})
 
 
@@ -175,7 +175,7 @@ def _edit(args: argparse.Namespace, out: Output) -> int:
     changed = vaultlib.edit_file(path, vault, lambda temp: _run_editor(editor, temp, path),
                                  ansible_format=_ansible_format(args, path))
     if not out.as_json:
-        out.line(f"saved {path}" if changed else f"no changes to {path}")
+        out.line(f"saved {one_line(path)}" if changed else f"no changes to {one_line(path)}")
     return _done(out, {"file": path, "changed": changed})
 
 

@@ -395,6 +395,14 @@ def test_devices_and_mounts_that_are_root() -> None:
     silent("device-duplicate", fleet=fleet, hosts=[host(devices=frozen_map({"motor": "/a", "lidar": "/b"}))])
 
 
+
+def test_fleet_octal_number_shows_what_the_file_read_found() -> None:
+    from rosdeploy.errors import Problem
+    found = Problem("fleet.yml", 9, "vars.port", "`017` is read as octal (15)")
+    p = fires("fleet-octal-number", fleet=replace(spec(), warnings=(found,)))
+    assert (p.file, p.line, p.key) == ("fleet.yml", 9, "vars.port") and "octal (15)" in p.message
+    silent("fleet-octal-number")
+
 def test_every_rule_is_tested_and_documented() -> None:
     for r in RULES.values():
         assert r.severity in checks.SEVERITIES and r.scope in ("fleet", "host", "release", "service")

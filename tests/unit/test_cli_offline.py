@@ -192,7 +192,7 @@ def test_service_asking_for_an_undeclared_device(capsys: pytest.CaptureFixture, 
     edit(lab / "fleet.yml", lambda d: d["services"]["driver"].update(devices=["motor", "lidar"]))
     code, _, err = lab_run(capsys, lab, "validate")
     assert code == 2
-    assert "services.driver.devices[1]: service driver needs device `lidar`" in err
+    assert "services.driver.devices[1]: service 'driver' needs device `lidar`" in err
     assert "'r1', 'r2'" in err and "`lidar: /dev/robot/lidar` under their `devices:`" in err
     code, _, err = lab_run(capsys, lab, "render", "--out", str(lab / "out"))
     assert code == 2 and "needs device `lidar`" in err and not (lab / "out").exists()

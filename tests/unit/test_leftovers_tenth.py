@@ -28,7 +28,7 @@ lab = test_hostile.lab      # the fixture: the example fleet copied
                                     {"type": "bind", "source": "/sys/power", "target": "/p"}])
 def test_a_writable_bind_of_sys_power_is_refused(volume: object) -> None:
     p = fires("mount-system-writable", volumes=[volume])
-    assert "service driver" in p.message and "/sys/power" in p.message and ":ro" in p.message, p.message
+    assert "service 'driver'" in p.message and "/sys/power" in p.message and ":ro" in p.message, p.message
     assert p.severity == "error"
 
 
