@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import difflib
+import errno
 import functools
 import glob
 import io
@@ -1380,7 +1381,8 @@ def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[st
         if not _exists(out["inventory"]):
             hint = (" (Ansible's host list, `-i host1,host2,`, is not read: write an inventory file)"
                     if "," in inventory else "")
-            r.problems.append(Problem("--inventory", None, "", f"{inventory} does not exist: fix the -i path{hint}"))
+            r.problems.append(Problem("--inventory", None, "", f"{inventory} {_missing(out['inventory'])}: fix the -i "
+                                                              f"path{hint}"))
     if version is not None:
         cli = Reader(Doc("--version", None))
         cli.take(_tag, ("version",), version, out, "version")
@@ -1391,7 +1393,7 @@ def _overrides(r: Reader, inventory: str | None, version: str | None) -> dict[st
 def _check_paths(r: Reader, top: dict, inventory_overridden: bool) -> None:
     inv = top.get("inventory")
     if not inventory_overridden and isinstance(inv, str) and not _exists(inv):
-        r.error(("inventory",), f"the inventory {_as_written(r, 'inventory', inv)} does not exist: fix the path "
+        r.error(("inventory",), f"the inventory {_as_written(r, 'inventory', inv)} {_missing(inv)}: fix the path "
                                 "(relative to the fleet file) or pass -i")
     tpl = top.get("templates")
     if isinstance(tpl, str) and not _exists(tpl, folder=True):
@@ -1405,6 +1407,16 @@ def _exists(path: str, folder: bool = False) -> bool:
         return Path(path).is_dir() if folder else Path(path).exists()
     except OSError:
         return False
+
+
+def _missing(path: str) -> str:
+    """Why a path that is not there is not: a link that leads back to itself reads as missing."""
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "is a symbolic link loop (a link that leads back to itself, directly or through other links)"
+    return "does not exist"
 
 
 def _as_written(r: Reader, key: str, expanded: str) -> str:

@@ -62,7 +62,18 @@ class ScryptParams:
 # scrypt takes 128*n*r bytes and time in p*n*r: allow twice the memory and four times the work of
 # what rosdeploy writes (ScryptParams()), so a header cannot make one file cost 16 GB or 20 s.
 _MAX_MEMORY = 2 * 128 * ScryptParams().n * ScryptParams().r          # 64 MiB
-_MAX_WORK = 4 * ScryptParams().p * ScryptParams().n * ScryptParams().r
+_DEFAULT_WORK = ScryptParams().p * ScryptParams().n * ScryptParams().r    # ~0.09 s
+_MAX_WORK = 4 * _DEFAULT_WORK
+# Ansible's key derivation (PBKDF2-SHA256, 10000 rounds) in the same unit: measured ~1/20 of
+# rosdeploy's default scrypt; charged as 1/16 so the budget below errs on the short side.
+_ANSIBLE_WORK = _DEFAULT_WORK // 16
+# The bound above is per header; nothing bounded how many headers (inline `!vault` values, vault
+# ids to try on each): 60 values at four times the work took 21 s, 10 values times 6 vault ids 27 s.
+# So a Vault (one command) derives at most this much key in all: 256 files or values at rosdeploy's
+# cost, ~20 s, a bound on what a hostile file can cost, not a pace: an inventory with a vault file
+# per robot (common in Ansible) stays usable up to 256 robots of ours, ~4,000 of Ansible's. A few
+# vault files (the README's advice) use a fraction; past it the message says what to do.
+MAX_KDF_WORK = 256 * _DEFAULT_WORK
 MAX_FILE_BYTES = yamlsrc.MAX_FILE_BYTES   # a vault file is a vars file: the inventory's bound
 MAX_PASSWORD_BYTES = 1 << 20     # a password file holds one line
 SCRIPT_OUTPUT_LIMIT = MAX_PASSWORD_BYTES
@@ -114,22 +125,45 @@ def check_header(data: bytes, source: str) -> None:
         _parse_header(header, source)
 
 
+def kdf_work(data: bytes, source: str) -> int:
+    """What deriving the key of `data` costs, in scrypt's p*n*r (see MAX_KDF_WORK); VaultError for
+    what decrypt() would refuse before deriving one."""
+    header = _header(data, source).strip().decode("ascii")
+    if data.startswith(ANSIBLE_MAGIC):
+        _check_ansible_header(header, source)
+        return _ANSIBLE_WORK
+    params = _parse_header(header, source)
+    return params.p * params.n * params.r
+
+
 def _scrypt(password: bytes, salt: bytes, params: ScryptParams) -> bytes:
     from cryptography.hazmat.primitives.kdf.scrypt import Scrypt
 
     return Scrypt(salt=salt, length=32, n=params.n, r=params.r, p=params.p).derive(password)
 
 
-def _split_header(data: bytes, source: str) -> tuple[str, str]:
+# What str.split() took for whitespace in an ASCII body (\x1c-\x1f too): deleted from the body.
+_BODY_WHITESPACE = b" \t\n\r\x0b\x0c\x1c\x1d\x1e\x1f"
+
+
+def _header(data: bytes, source: str) -> bytes:
+    """The first line of a vault file, which must be ASCII throughout; the body is not copied."""
     if not is_encrypted(data):
         raise _error(source, "not a vault file (no $ROSDEPLOY_VAULT or $ANSIBLE_VAULT header)")
-    try:
-        text = data.decode("ascii")
-    except UnicodeDecodeError:
+    if not data.isascii():
         raise _error(source, "vault file holds non-ASCII bytes: it is damaged; restore it "
-                             "from version control") from None
-    header, _, body = text.partition("\n")
-    return header.strip(), "".join(body.split())
+                             "from version control")
+    end = data.find(b"\n")
+    return data[:end] if end >= 0 else data
+
+
+def _split_header(data: bytes, source: str) -> tuple[str, memoryview]:
+    """The header line, and the body without whitespace, one copy of it. A 60 MB body split into
+    its million lines (then joined, then unhexlified twice) took 382 MB to find a wrong password."""
+    header = _header(data, source)
+    # The whole file at once, the header's share cut off through a view: partition() copied the body.
+    whole = data.translate(None, _BODY_WHITESPACE)
+    return header.strip().decode("ascii"), memoryview(whole)[len(header.translate(None, _BODY_WHITESPACE)):]
 
 
 def _parse_header(header: str, source: str) -> ScryptParams:
@@ -142,11 +176,14 @@ def _parse_header(header: str, source: str) -> ScryptParams:
         raise _error(source, f"unsupported cipher {_shown(fields[2])} / key derivation {_shown(fields[3])} "
                              "in the vault header: only AES256-GCM with scrypt is known")
     try:
-        values = dict(item.split("=", 1) for item in fields[4].split(","))
+        items = [item.split("=", 1) for item in fields[4].split(",")]
+        values = dict(items)
+        if len(values) != len(items) or values.keys() != {"n", "r", "p"}:
+            raise ValueError("a field repeated, missing or unknown")   # `n=..,r=..,p=1,n=2` was read, last wins
         params = ScryptParams(n=int(values["n"]), r=int(values["r"]), p=int(values["p"]))
-    except (ValueError, KeyError):
+    except ValueError:
         raise _error(source, f"malformed scrypt parameters {_shown(fields[4])} in the vault header: "
-                             "expected n=N,r=R,p=P") from None
+                             "expected n=N,r=R,p=P, each once") from None
     _check_params(params, source)
     return params
 
@@ -166,7 +203,7 @@ def _shown(text: str) -> str:
     return shown(text, _SHOWN)
 
 
-def _b64(body: str, source: str) -> bytes:
+def _b64(body: memoryview, source: str) -> bytes:
     try:
         return base64.b64decode(body, validate=True)
     except binascii.Error:
@@ -211,18 +248,19 @@ def ansible_encrypt(plaintext: bytes, password: bytes, label: str | None = None)
 
 def ansible_label(data: bytes) -> str | None:
     """The vault-id label of a 1.2 Ansible vault file, if any."""
-    fields = data.split(b"\n", 1)[0].strip().split(b";")
+    end = data.find(b"\n")
+    fields = (data[:end] if end >= 0 else data).strip().split(b";")   # split() copied the whole body
     return fields[3].decode("ascii", "replace") if len(fields) > 3 else None
 
 
-def _ansible_decrypt(header: str, body: str, password: bytes, source: str, password_source: str) -> bytes:
+def _ansible_decrypt(header: str, body: memoryview, password: bytes, source: str, password_source: str) -> bytes:
     from cryptography.exceptions import InvalidSignature
     from cryptography.hazmat.primitives import hashes, hmac, padding
     from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
 
     _check_ansible_header(header, source)
     try:
-        salt, mac, ciphertext = (binascii.unhexlify(x) for x in binascii.unhexlify(body).split(b"\n", 2))
+        salt, mac, ciphertext = _ansible_parts(body)
     except (binascii.Error, ValueError):
         raise _error(source, "Ansible vault body is malformed (expected hex): the file is damaged; "
                              "restore it from version control") from None
@@ -239,6 +277,17 @@ def _ansible_decrypt(header: str, body: str, password: bytes, source: str, passw
         return unpadder.update(decryptor.update(ciphertext) + decryptor.finalize()) + unpadder.finalize()
     except ValueError:
         raise _error(source, "Ansible vault padding is invalid: the file is damaged") from None
+
+
+def _ansible_parts(body: memoryview) -> tuple[bytes, bytes, bytes]:
+    """salt, mac and ciphertext of an Ansible vault body (hex of three hex lines), cut from one
+    unhexlified copy through a memoryview: split() copied the ciphertext once more."""
+    inner = binascii.unhexlify(body)
+    first = inner.index(b"\n")
+    second = inner.index(b"\n", first + 1)
+    view = memoryview(inner)
+    return (binascii.unhexlify(view[:first]), binascii.unhexlify(view[first + 1:second]),
+            binascii.unhexlify(view[second + 1:]))
 
 
 def _check_ansible_header(header: str, source: str) -> None:
@@ -318,7 +367,8 @@ class Vault:
     or several vault ids, as in Ansible: a file is tried with the id its label names first,
     then with every other. Rendering 500 robots reads the same group_vars vault for each of
     them: the cache (keyed by the ciphertext's hash) makes that one key derivation, not 500.
-    Thread-safe: the rollout renders robots from many threads.
+    Key derivation is bounded per Vault (MAX_KDF_WORK). Thread-safe: the rollout renders robots
+    from many threads.
     """
 
     def __init__(self, password: bytes | None = None, *, password_file: str | None = None,
@@ -331,6 +381,8 @@ class Vault:
         self._ids = tuple(ids)
         self._passwords: dict[int, tuple[bytes, str]] = {}
         self._cache: dict[bytes, bytes] = {}
+        self._kdf_work = 0                 # spent of MAX_KDF_WORK
+        self._opened: int | None = None    # the vault id that opened the last file or value
         self._lock = threading.Lock()
         if password is not None:
             self._passwords[0] = (password, "the caller")
@@ -385,12 +437,11 @@ class Vault:
         with self._lock:
             if key in self._cache:
                 return self._cache[key]
-        label = ansible_label(data) if data.startswith(ANSIBLE_MAGIC) else None
-        # Ansible's order: the id the file's label names, then every other one.
-        order = sorted(range(len(self.labels)), key=lambda i: self.labels[i] != label)
+        work = kdf_work(data, source)
         tried = []
-        for index in order:
+        for index in self._order(data):
             password, used = self._password(index, source)
+            self._spend(work, source)
             try:
                 plaintext = decrypt(data, password, source, password_source=used)
                 break
@@ -400,7 +451,34 @@ class Vault:
             raise _wrong_password(source, ", then ".join(tried))
         with self._lock:
             self._cache[key] = plaintext
+            self._opened = index
         return plaintext
+
+    def _order(self, data: bytes) -> list[int]:
+        """Ansible's order: the id the file's label names first, then every other one; among
+        those, the id that opened the last file first. rosdeploy's format and Ansible's 1.1 carry
+        no label, and one inventory's values are mostly sealed with one password: 10 values and 6
+        ids were 60 key derivations in the ids' order, and are 15 so."""
+        label = ansible_label(data) if data.startswith(ANSIBLE_MAGIC) else None
+        with self._lock:
+            opened = self._opened
+        return sorted(range(len(self.labels)), key=lambda i: (self.labels[i] != label, i != opened))
+
+    def _spend(self, work: int, source: str) -> None:
+        """Count one key derivation against MAX_KDF_WORK, before it is done; VaultError past it."""
+        with self._lock:
+            if self._kdf_work + work > MAX_KDF_WORK:
+                spent = self._kdf_work
+            else:
+                self._kdf_work += work
+                return
+        budget = MAX_KDF_WORK // _DEFAULT_WORK
+        raise _error(source, f"decrypting this takes the command past its key-derivation budget ({budget} derivations "
+                             f"at rosdeploy's default scrypt cost, ~5 s; {spent / _DEFAULT_WORK:g} spent): too many "
+                             "`!vault` values or vault files, costly scrypt headers, or vault ids tried before the "
+                             "right one. Keep secrets in a few vault-encrypted vars files (one derivation each) "
+                             "rather than many `!vault` values, re-encrypt costly ones with `rosdeploy vault "
+                             "encrypt`/`encrypt-string` (default cost), and give the usual --vault-id first")
 
     def encrypt(self, plaintext: bytes, needed_by: str, *, ansible: bool = False, label: str | None = None) -> bytes:
         """rosdeploy's format, or Ansible's (1.2 with the vault id's label unless it is `default`)."""

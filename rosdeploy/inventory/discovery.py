@@ -1,6 +1,7 @@
 """Finding the inventory files (a file or a directory of them) and reading them, vault included."""
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 from typing import Any, Callable
@@ -119,6 +120,20 @@ def _exists(path: Path) -> bool:
         return False
 
 
+def _not_found(root: Path) -> str:
+    """Why `root` is not there. A symbolic link loop fails exists() as a missing file does, and
+    was reported as one: the path is there, and the link is what to fix."""
+    try:
+        os.stat(root)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return ("a symbolic link loop (a link that leads back to itself, directly or through other "
+                    "links): fix the link, or check -i / the fleet file's `inventory:` path")
+    except ValueError:
+        pass
+    return "inventory not found: check -i / the fleet file's `inventory:` path"
+
+
 def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
     """Parse the inventory file(s); returns the directory holding group_vars/ and host_vars/."""
     if is_dir(root):
@@ -134,8 +149,7 @@ def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
                                                            "`inventory:`)"))
         return root
     else:
-        draft.problems.append(Problem(str(root), None, "", "inventory not found: check -i / the fleet "
-                                                           "file's `inventory:` path"))
+        draft.problems.append(Problem(str(root), None, "", _not_found(root)))
         return root
     for path in files:
         if is_password_file(path, reader):

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from rosdeploy.errors import Problem
+from rosdeploy.inventory import ranges
 from rosdeploy.inventory.draft import Draft, Origin, make_layer
 from rosdeploy.inventory.ranges import valid_name
 from rosdeploy.yamlsrc import MAX_DEPTH, Doc, KeyPath, dotted, not_text
@@ -48,8 +49,8 @@ def parse_script(path: Path, draft: Draft) -> None:
     origin = Origin(Doc(str(path), data, {(): 1}))
     hostvars = _hostvars(origin, data, draft)
     for group, entry in data.items():
-        if group != "_meta":
-            _group(origin.child(group), str(group), entry, draft)
+        if group != "_meta" and not _group(origin.child(group), str(group), entry, draft):
+            return     # past the host bound: no `--host` run for each of its hosts
     for host in list(draft.hosts) if hostvars is None else []:
         found = _run(path, ["--host", host], draft, what="the vars of that host (a JSON object of name: value)")
         if found:
@@ -95,10 +96,12 @@ def _kind(value: Any) -> str:
     return kinds.get(type(value), type(value).__name__)
 
 
-def _group(origin: Origin, name: str, entry: Any, draft: Draft) -> None:
-    """One group of the JSON, in Ansible's three shapes: a host list, {hosts, vars, children}, or vars."""
+def _group(origin: Origin, name: str, entry: Any, draft: Draft) -> bool:
+    """One group of the JSON, in Ansible's three shapes: a host list, {hosts, vars, children}, or vars.
+    False once the output names more hosts than an inventory may hold (ranges.MAX_HOSTS): only its
+    64 MB bounded them, a few million names."""
     if not valid_name(name, origin, draft, "group"):
-        return
+        return True
     draft.group(name, origin.where)
     if not isinstance(entry, dict):
         entry = {"hosts": entry}
@@ -114,12 +117,17 @@ def _group(origin: Origin, name: str, entry: Any, draft: Draft) -> None:
                                                      "(a group is {hosts: [..], vars: {..}, children: [..]}, or a "
                                                      "list of host names): fix the script"))
     if bad:
-        return
+        return True
     for index, host in enumerate(hosts or []):
         # Ansible refuses a host name that is no string ("Invalid host name supplied, expected a
         # string"): 1 or null would become a robot named "1" or "None".
         if _string_name(host, origin.child("hosts").child(index), draft, "host") \
                 and valid_name(host, origin, draft, "host"):
+            if host not in draft.hosts and len(draft.hosts) >= ranges.MAX_HOSTS:
+                draft.problems.append(origin.problem(("hosts", index), f"the script's output names more than "
+                                                     f"{ranges.MAX_HOSTS} hosts, the most an inventory may hold: "
+                                                     "fix the script"))
+                return False
             draft.add_host(name, host, origin, None)
     if group_vars:
         draft.groups[name].inline.append(make_layer(group_vars, origin.child("vars")))
@@ -128,6 +136,7 @@ def _group(origin: Origin, name: str, entry: Any, draft: Draft) -> None:
                 and valid_name(child, origin, draft, "group"):
             draft.group(child, origin.where)
             draft.groups[name].children.setdefault(child, origin)
+    return True
 
 
 def _string_name(value: Any, origin: Origin, draft: Draft, what: str) -> bool:

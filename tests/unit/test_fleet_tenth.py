@@ -152,3 +152,11 @@ def test_validate_and_check_show_an_octal_number_in_the_fleet_file(capsys: pytes
         text = out.out + out.err
         assert code == 0, text
         assert f"fleet.yml:{line}: vars.site_port: `017` is read as octal (15)" in text, text
+
+
+def test_an_inventory_that_is_a_symlink_loop_is_named_so(capsys: pytest.CaptureFixture, lab: Path) -> None:  # noqa: F811
+    loop = lab / "loop"
+    loop.symlink_to(loop)
+    code = main(["validate", str(lab / "fleet.yml"), "-i", str(loop)])
+    text = capsys.readouterr().err
+    assert code == 2 and f"{loop} is a symbolic link loop" in text and "does not exist" not in text, text

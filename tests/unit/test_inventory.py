@@ -168,13 +168,13 @@ def test_a_long_group_cycle_is_one_short_line(tmp_path):
                                           ("r[1:99999][1:99999:2]", 99999 * 50000)])
 def test_a_host_range_past_the_bound_is_refused_before_it_expands(tmp_path, entry, count):
     message = problems_of(tmp_path, {"hosts": f"[lab]\n{entry} ros_domain_id=1\n"})
-    assert f"hosts:2: invalid host range {entry!r}: it names {count} hosts, more than 50000" in message
+    assert f"hosts:2: invalid host range {entry!r}: it names {count} hosts, more than 20000" in message
 
 
 def test_ranges_together_past_the_bound_are_refused(tmp_path):
-    lines = "".join(f"{p}[1:40000]\n" for p in "abc")
+    lines = "".join(f"{p}[1:8000]\n" for p in "abc")
     message = problems_of(tmp_path, {"hosts": f"[lab]\n{lines}"})
-    assert "hosts:4: host range 'c[1:40000]' takes this inventory past 100000 hosts" in message
+    assert "hosts:4: host range 'c[1:8000]' takes this inventory past 20000 hosts" in message
 
 
 def test_yaml_hosts_may_be_null_and_ranges_expand(tmp_path):
