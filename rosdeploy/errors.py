@@ -5,9 +5,10 @@ to guess which kind of failure it is looking at.
 """
 from __future__ import annotations
 
+import itertools
 import re
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Any, Iterable, Iterator
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1      # a bug in rosdeploy: traceback goes to the run log
@@ -63,14 +64,77 @@ def one_line(text: str) -> str:
 
 
 def shown(value: object, limit: int = SHOWN_CHARS) -> str:
-    """repr() of a user value for a message; past `limit` characters its head, `...` and its length."""
+    """repr() of a user value for a message; past `limit` characters its head, `...` and its length.
+    A container is never written out whole: a list holding one list 16 times, ten levels deep
+    (a few KB in memory), is 2**40 items written out, and repr() of it took all memory."""
     if isinstance(value, str):
         return repr(value) if len(value) <= limit else f"{value[:limit]!r}... ({len(value)} characters)"
     try:
-        text = repr(value)
+        head = "".join(itertools.islice(_repr_pieces(value, set()), limit + 1))
+        if len(head) <= limit:
+            return head
+        total = _repr_length(value, {}, set())
     except ValueError:      # an int past Python's 4,300-digit str() bound
         return "a number too long to show"
-    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+    except RecursionError:
+        return f"a {type(value).__name__} nested too deeply to show"
+    return f"{head[:limit]}... ({total} characters)"
+
+
+# The containers shown item by item, and how repr() opens and closes them (a set's `{}`).
+_OPENED: dict[type, tuple[str, str]] = {list: ("[", "]"), tuple: ("(", ")"), dict: ("{", "}"), set: ("{", "}"),
+                                        frozenset: ("frozenset({", "})")}
+_EMPTY: dict[type, str] = {list: "[]", tuple: "()", dict: "{}", set: "set()", frozenset: "frozenset()"}
+
+
+def _items(value: Any) -> Iterator[tuple[Any, ...]]:
+    """A container's items as repr() writes them: (key, value) pairs of a dict, single items else."""
+    return iter(value.items()) if isinstance(value, dict) else ((item,) for item in value)
+
+
+def _repr_pieces(value: Any, open_: set[int]) -> Iterator[str]:
+    """repr(value) in pieces, built only as far as they are taken (a container's items lazily)."""
+    kind = type(value)
+    if kind not in _OPENED:      # a scalar or any other object (a subclass writes itself its own way)
+        yield repr(value)
+        return
+    if not value:
+        yield _EMPTY[kind]
+        return
+    start, end = _OPENED[kind]
+    if id(value) in open_:       # a container inside itself, as repr() writes it
+        yield f"{start[-1]}...{end[0]}"
+        return
+    open_.add(id(value))
+    yield start
+    for index, item in enumerate(_items(value)):
+        if index:
+            yield ", "
+        yield from _repr_pieces(item[0], open_)
+        if len(item) == 2:
+            yield ": "
+            yield from _repr_pieces(item[1], open_)
+    yield "," + end if kind is tuple and len(value) == 1 else end
+    open_.discard(id(value))
+
+
+def _repr_length(value: Any, known: dict[int, int], open_: set[int]) -> int:
+    """len(repr(value)), each container counted once (memoised by id) however often it is held."""
+    kind = type(value)
+    if kind not in _OPENED or not value:
+        return len(_EMPTY[kind]) if kind in _OPENED else len(repr(value))
+    if id(value) in known:
+        return known[id(value)]
+    if id(value) in open_:
+        return 5                # `[...]`
+    open_.add(id(value))
+    start, end = _OPENED[kind]
+    total = len(start) + len(end) + 2 * (len(value) - 1) + (kind is tuple and len(value) == 1)
+    for item in _items(value):
+        total += sum(_repr_length(part, known, open_) for part in item) + 2 * (len(item) - 1)
+    open_.discard(id(value))
+    known[id(value)] = total
+    return total
 
 
 class RosdeployError(Exception):

@@ -25,7 +25,9 @@ every mutation of a list or dict, and ranges over 100,000 items. On top of it:
   units of work (loop items by the size of the loop body, calls, filter calls, items weighed,
   `in` searches, and the characters or items an operation reads or builds: a slice, `~`, a
   comparison, a filter or str method of a long string): nested loops, `range(99999)|select('in',
-  big)` or `big[::-1]` in a loop stop within a second or two, not hours;
+  big)` or `big[::-1]` in a loop stop within a second or two, not hours; and inside
+  command_budget() (one CLI command) all renders together at most COMMAND_WORK, so a value
+  costing most of MAX_WORK is not run for each of 5,000 robots;
 - every string or list a filter, slice, operator, method call, literal or macro builds is at
   most MAX_LENGTH characters or items (checked as soon as it is built: `|tojson|tojson...`
   doubling its backslashes stops at the first one too long), and all those one render builds
@@ -64,6 +66,7 @@ from jinja2.runtime import LoopContext
 from jinja2.sandbox import ImmutableSandboxedEnvironment, SandboxedEscapeFormatter, SandboxedFormatter, SecurityError
 from markupsafe import Markup
 
+from rosdeploy.budget import COMMAND, COMMAND_WORK, LOCK, command_budget  # noqa: F401 (command_budget: the API)
 from rosdeploy.yamlsrc import not_text
 
 MAX_NESTING = 64                 # levels of a template's syntax tree (see _PlainReads._generate)
@@ -89,6 +92,9 @@ _WIDTH_FILTERS = ("center", "indent", "wordwrap", "truncate", "batch", "slice")
 _TOO_LONG = f"a value longer than {MAX_LENGTH:,} characters is not allowed"
 _TOO_MUCH_WORK = (f"this template takes more than {MAX_WORK:,} loop steps or searches (loops inside loops, or `in` "
                   "a long list many times) and is not allowed: loop over less, or search a dict instead of a list")
+_COMMAND_SPENT = (f"the templates of this command together take more than {COMMAND_WORK:,} loop steps or "
+                  "searches (some value or template file does much work for every robot) and are not allowed: "
+                  "find the values that loop or search the most and make them do less")
 _TOO_MUCH_BUILT = (f"this template builds more than {MAX_BUILT // 1_000_000} MB of strings and lists in all (long "
                    "values copied in a loop, into a list or through a recursive macro) and is not allowed: build "
                    "fewer or shorter values")
@@ -103,7 +109,8 @@ _VALUE_FORBIDDEN = (jinja2.nodes.For, jinja2.nodes.Macro, jinja2.nodes.CallBlock
 
 # re's own parser (no stubs): a pattern's parse tree, to bound its backtracking before matching
 _sre_parse: Any = importlib.import_module("re._parser")
-_RENDER = threading.local()     # .budget: [work left, bytes left] of the render under way in this thread, or None
+# .budget: [work left, bytes left, work given] of the render under way in this thread, or None
+_RENDER = threading.local()
 
 
 def _bounded_concat(parts: Iterable[str]) -> str:
@@ -113,15 +120,33 @@ def _bounded_concat(parts: Iterable[str]) -> str:
     budget = getattr(_RENDER, "budget", None)
     if budget is not None:      # a macro, `{% set %}` block, inventory var: a string it holds on to
         return _built(_joined(parts), budget, "this block's output")
-    _RENDER.budget = [MAX_WORK, MAX_BUILT]
-    try:
+    with metered():
         text = _joined(parts)
-    finally:
-        _RENDER.budget = None
     why = not_text(text)
     if why is not None:     # `{{ "\\ud800" }}`: Jinja reads escapes; writing the text would crash
         raise NotText(f"the rendered text {why}")
     return text
+
+
+@contextlib.contextmanager
+def metered() -> Iterator[list[int]]:
+    """The budget of the render under way in this thread; if none is, a new one for the render
+    that starts here (MAX_WORK, or what is left of the command's budget if less), whose work is
+    taken from the command's budget when it ends."""
+    budget = getattr(_RENDER, "budget", None)
+    if budget is not None:
+        yield budget
+        return
+    command = COMMAND.left
+    given = MAX_WORK if command is None else max(0, min(MAX_WORK, command[0]))
+    budget = _RENDER.budget = [given, MAX_BUILT, given]
+    try:
+        yield budget
+    finally:
+        _RENDER.budget = None
+        if command is not None:
+            with LOCK:
+                command[0] -= given - budget[0]
 
 
 class NotText(SecurityError):
@@ -164,7 +189,13 @@ def charge(units: int, budget: list[int] | None = None) -> None:
     budget = _budget() if budget is None else budget
     budget[0] -= units
     if budget[0] < 0:
-        raise SecurityError(_TOO_MUCH_WORK)
+        raise SecurityError(_out_of_work(budget))
+
+
+def _out_of_work(budget: list[int]) -> str:
+    """Why a render whose budget is spent is refused: its own bound, or the command's (a budget
+    given less than MAX_WORK: what the renders before it had left)."""
+    return _TOO_MUCH_WORK if len(budget) < 3 or budget[2] >= MAX_WORK else _COMMAND_SPENT
 
 
 def _built(value: Any, budget: list[int], what: str = "this value", new_items: bool = False) -> Any:
@@ -186,7 +217,7 @@ def _built(value: Any, budget: list[int], what: str = "this value", new_items: b
     budget[0] -= work
     budget[1] -= held
     if budget[0] < 0:
-        raise SecurityError(_TOO_MUCH_WORK)
+        raise SecurityError(_out_of_work(budget))
     if budget[1] < 0:
         raise SecurityError(_TOO_MUCH_BUILT)
     return value
@@ -910,9 +941,12 @@ def _weigh(value: Any, limit: int, seen: dict[int, int]) -> int:
 def written(value: Any) -> Any:
     """Every `{{ value }}` and `~` operand before str(): a list holding the same list many times
     over (`{% set a = [a, a] %}` 60 times) is small in memory, but 2**60 characters written out;
-    and an object written as its address (`{{ range }}`) is different text on every run."""
+    and an object written as its address (`{{ range }}`) is different text on every run.
+    None (a null var) writes as nothing, as Ansible's templar finalizes it, not as `None`."""
     if isinstance(value, (str, int, float)):     # most output; Markup is a str, bool an int
         return value
+    if value is None:
+        return ""
     if isinstance(value, _CONTAINERS) and weight(value) > MAX_LENGTH:
         raise SecurityError(_TOO_LONG)
     _refuse_addressed(value, set())

@@ -18,6 +18,7 @@ from types import FrameType
 from typing import Any, Iterator, Sequence, TextIO
 
 from rosdeploy import __version__
+from rosdeploy.budget import command_budget
 from rosdeploy.cli.common import EXIT_CODES, Parser, UsageError, add_command
 from rosdeploy.errors import (EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, InputError,
                               Problem, RosdeployError, shown)
@@ -92,7 +93,8 @@ def _main(argv: list[str]) -> tuple[int, bool]:
         return _finish(out, _fail(out, exc)), False
     out = Output(as_json=args.json, color=args.color, hold=True)
     try:
-        code = int(args.func(args, out) or 0)
+        with command_budget():
+            code = int(args.func(args, out) or 0)
     except Exception as exc:
         if args.debug and not isinstance(exc, RosdeployError):
             traceback.print_exc()

@@ -25,7 +25,7 @@ from typing import Any, Callable, Iterator, Mapping
 import jinja2
 from jinja2.sandbox import unsafe
 
-from rosdeploy.sandbox import MAX_LENGTH, Failing, NotText, Sandbox
+from rosdeploy.sandbox import MAX_LENGTH, Failing, NotText, Sandbox, metered, weight
 
 from rosdeploy.errors import InventoryError, Problem, shown
 from rosdeploy.inventory.draft import Origin, strings
@@ -276,7 +276,9 @@ class HostVars(Mapping[str, Any]):
             raise TemplateFailed(key, f"recursive loop: {' -> '.join([*(k for _, k in stack), key])}")
         _LOCAL.stack = [*stack, (self, key)]
         try:
-            return _render(value, _Scope(self), key)
+            result = _render(value, _Scope(self), key)
+            # a YAML list or dict of templates: each item is weighed alone (_sized), not all together
+            return _sized(key, result) if result is not value else result
         finally:
             _LOCAL.stack = stack
 
@@ -347,7 +349,7 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
     try:
         whole = _WHOLE.match(value)
         if whole and "{{" not in whole["expr"] and "}}" not in whole["expr"]:
-            return _checked(key, _expression(whole["expr"], scope))
+            return _checked(key, _sized(key, _expression(whole["expr"], scope)))
         template = _compiled(value)
         context = template.new_context(scope, shared=True)
         text = _ENV.concat(template.root_render_func(context))
@@ -363,6 +365,16 @@ def _render(value: Any, scope: _Scope, key: str) -> Any:
                       deep=True, fixed=True) from None
     except (TypeError, ValueError, ArithmeticError, LookupError, AttributeError) as exc:
         raise _failed(scope, key, value, str(exc)) from None
+
+
+def _sized(key: str, result: Any) -> Any:
+    """A var's templated list or dict, refused here (at the var) when written out it would be longer
+    than MAX_LENGTH: `[v1, v1, ...]` sixteen times, ten vars deep, is a few KB in memory but 2**40
+    items to every reader (weight counts a list held many times over each time, memoised)."""
+    if isinstance(result, (list, tuple, dict, set, frozenset)) and weight(result) > MAX_LENGTH:
+        raise TemplateFailed(key, f"the value of {key} would be longer than {MAX_LENGTH:,} characters or items "
+                             "written out (a list or dict that holds other vars' lists many times over)")
+    return result
 
 
 def _checked(key: str, result: Any) -> Any:
@@ -397,8 +409,9 @@ def _expression(expr: str, scope: _Scope) -> Any:
     """`{{ expr }}` alone: the expression's own value, not its text (so a number stays a number)."""
     template = _compiled_expression(expr)
     context = template.new_context(scope, shared=True)
-    for _ in template.root_render_func(context):
-        pass
+    with metered():     # its work counts toward the command's budget too, as a text's does (concat)
+        for _ in template.root_render_func(context):
+            pass
     result = context.vars["result"]
     if isinstance(result, jinja2.Undefined):
         result._fail_with_undefined_error()
