@@ -78,6 +78,7 @@ class Target:
     compose: Mapping[str, Any] | None = None                        # interpolated; None: unparsable
     raw_compose: Mapping[str, Any] | None = None                    # before interpolation
     compose_error: str = ""
+    env_problems: tuple[str, ...] = ()   # "line N: why" of .env lines Compose v1 reads otherwise, or unseen
 
     @property
     def services(self) -> Mapping[str, Any]:
@@ -255,56 +256,251 @@ def _set_at(host: Host, key: str) -> str:
 def parse_release(host: Host, release: RenderedRelease) -> Target:
     """The release's compose.yml parsed back, with ${VARS} taken from its .env the way compose does."""
     names = {f.name: f for f in release.files}
-    env = parse_env(names[".env"].content) if ".env" in names else {}
+    env, problems = read_env(names[".env"].content) if ".env" in names else ({}, [])
+    env_problems = tuple(problems)
     if "compose.yml" not in names:
-        return Target(host, release, env, None, None, "no compose.yml was rendered")
+        return Target(host, release, env, None, None, "no compose.yml was rendered", env_problems)
     if release.compose_data is not None:   # the built-in template's output, as data: no parse
         raw, resolved = release.compose_data
-        return Target(host, release, env, resolved, raw)
+        return Target(host, release, env, resolved, raw, "", env_problems)
     try:
         # load(), not load_data(): a user template can render a key twice, which Compose v2 refuses
         raw = yamlsrc.load("compose.yml", text=names["compose.yml"].content).data
     except InputError as exc:
-        p = exc.problems[0]
-        return Target(host, release, env, None, None, f"line {p.line}: {p.message}" if p.line else p.message)
+        return Target(host, release, env, None, None, _yaml_error(exc.problems[0]), env_problems)
     if not isinstance(raw, dict):
-        return Target(host, release, env, None, None, "it is not a mapping")
-    return Target(host, release, env, interpolate(raw, env), raw)
+        return Target(host, release, env, None, None, "it is not a mapping", env_problems)
+    return Target(host, release, env, interpolate(raw, env), raw, "", env_problems)
+
+
+def _yaml_error(p: Problem) -> str:
+    if "another document" in p.message:     # PyYAML's "expected a single document ...", cut short by yamlsrc
+        return (f"it renders more than one YAML document (a `---` at line {p.line}): Compose v2 merges them, and "
+                "`check` reads one; remove the `---`")
+    return f"line {p.line}: {p.message}" if p.line else p.message
 
 
 def parse_env(text: str) -> dict[str, str]:
-    """KEY=VALUE lines as compose reads a .env: comments skipped, one level of quotes removed."""
+    """The .env's values as Compose v2 reads them (read_env)."""
+    return read_env(text)[0]
+
+
+# One statement of a .env as compose-go's dotenv parser starts it: blank lines and `#` lines skipped,
+# then `export `, the key and what ends it (`=`, YAML's `:`, or the line: "take it from the environment").
+_ENV_SKIP = re.compile(r"(?:\s+|#[^\n]*)*")
+_ENV_KEY = re.compile(r"(?:export[ \t]+)?([A-Za-z0-9_.\[\]\- \t\r\f\v]*?)[ \t\r\f\v]*([=:\n]|\Z)")
+_ENV_SPACE = re.compile(r"[ \t\r\f\v]*")
+_ENV_AFTER_QUOTE = re.compile(r"[ \t\r\f\v]*(?:#[^\n]*)?(?:\n|\Z)")
+_ENV_PLAIN = re.compile(r"(?:[ \t]*(?:#[^\n]*)?(?:\n|\Z)|[A-Za-z_][A-Za-z0-9_]*="
+                        r"(?:[A-Za-z0-9_./:@%+,=-]*|'[^'\\\n]*')[ \t]*(?:\n|\Z))*")
+_ENV_PLAIN_LINE = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)=(?:'([^'\n]*)'|([^\s']*))", re.MULTILINE)
+_ENV_SIMPLE = re.compile(r"[A-Za-z0-9_./:@%+,=-]*")         # render.env_value's unquoted text
+_GO_ESCAPE = {"a": "\a", "b": "\b", "f": "\f", "n": "\n", "r": "\r", "t": "\t", "v": "\v", "\\": "\\",
+              '"': '"', "'": "'", "$": "$$"}      # compose-go's expandEscapes: Go's escapes, and `\$` as `$$`
+
+
+def read_env(text: str) -> tuple[dict[str, str], list[str]]:
+    """A .env as Compose v2 reads it (compose-go's dotenv parser: a ` #` comment after an unquoted
+    value, a quoted value across lines, `export `, `${VAR}` of earlier lines), and "line N: why"
+    for each line Compose v1 (python-dotenv) reads otherwise, or that takes a value from the
+    robot's environment, which `check` cannot see. The built-in env.j2 writes neither."""
+    if _ENV_PLAIN.fullmatch(text):     # the built-in env.j2's lines (render.env_value): read the quick way
+        return {m[1]: m[3] if m[2] is None else m[2] for m in _ENV_PLAIN_LINE.finditer(text)}, []
     env: dict[str, str] = {}
-    for line in text.splitlines():
-        line = line.strip()
-        if not line or line.startswith("#") or "=" not in line:
+    problems: list[str] = []
+    pos = 0
+    while True:
+        pos = _skip(_ENV_SKIP, text, pos)
+        if pos >= len(text):
+            return env, problems
+        start = pos
+        key = _ENV_KEY.match(text, pos)
+        name = key[1].strip() if key else ""
+        if key is None or not name or " " in name or "\t" in name:
+            problems.append(f"line {_line_of(text, start)}: `{_first_line(text, start)}` is not KEY=VALUE "
+                            "(Compose refuses the .env)")
+            pos = _next_line(text, pos)
             continue
-        key, _, value = line.removeprefix("export ").partition("=")
-        value = value.strip()
-        if len(value) >= 2 and value[0] == value[-1] and value[0] in "'\"":
-            value = value[1:-1]
-        env[key.strip()] = value
-    return env
+        pos = key.end()
+        if key[2] != "=":
+            problems.append(f"line {_line_of(text, start)}: `{_first_line(text, start)}` " + (
+                f"takes {name} from the robot's environment, which `check` cannot see: write `{name}=<value>`"
+                if key[2] != ":" else "is YAML's `KEY: value`, which Compose v1 does not read: write `KEY=value`"))
+            if key[2] != ":":
+                continue
+        pos = _skip(_ENV_SPACE, text, pos)
+        value, pos, why = _env_value(text, pos, env)
+        if why:
+            problems.append(f"line {_line_of(text, start)}: {name}'s value {why}")
+        env[name] = value
 
 
-def interpolate(value: Any, env: Mapping[str, str]) -> Any:
-    """${VAR}, ${VAR:-default}, ${VAR-default}, $VAR and $$ in every string, recursively."""
+def _skip(pattern: re.Pattern[str], text: str, pos: int) -> int:
+    """Past what `pattern` (which matches the empty string too) matches at `pos`."""
+    found = pattern.match(text, pos)
+    return found.end() if found else pos
+
+
+def _env_value(text: str, pos: int, env: Mapping[str, str]) -> tuple[str, int, str]:
+    """(value, where the next statement starts, why Compose v1 would read it otherwise, or "")."""
+    quote = text[pos:pos + 1]
+    if quote not in ("'", '"'):
+        end = text.find("\n", pos)
+        end = len(text) if end < 0 else end
+        written = text[pos:end]
+        if _ENV_SIMPLE.fullmatch(written):          # the built-in env.j2's unquoted values: as written
+            return written, end, ""
+        value = written.split(" #", 1)[0].rstrip()
+        tab = "has a `#` after a tab, which Compose v1 reads as a comment and v2 as text" \
+            if re.search(r"\s#", value) else ""
+        return _expanded_at(value, env, tab, end)
+    close = text.find(quote, pos + 1)
+    if close > 0 and "\\" not in text[pos:close] and (quote == "'" or "$" not in text[pos:close]):
+        return _quoted(text, pos, close, text[pos + 1:close], env)     # no escapes: the built-in's quoting
+    chars: list[str] = []
+    escaped = False
+    for i in range(pos + 1, len(text)):
+        char = text[i]
+        if char == quote and not escaped:
+            return _quoted(text, pos, i, "".join(chars), env)
+        if char == "\\" and not escaped:
+            escaped = True
+            continue
+        chars.append("\\" + char if escaped and char != quote else char)   # only the quote is unescaped
+        escaped = False
+    return "", len(text), "has no closing quote (Compose refuses the .env)"
+
+
+def _expanded_at(value: str, env: Mapping[str, str], why: str, nxt: int) -> tuple[str, int, str]:
+    expanded, why = _env_expand(value, env, why)
+    return expanded, nxt, why
+
+
+def _quoted(text: str, start: int, end: int, value: str, env: Mapping[str, str]) -> tuple[str, int, str]:
+    """A quoted value's reading, from its opening quote at `start` to its closing one at `end`."""
+    after = _ENV_AFTER_QUOTE.match(text, end + 1)
+    why = "" if after else "has text after its closing quote, which Compose v2 reads as another line"
+    written = text[start + 1:end]
+    if "\\" in written and (text[start] == '"' or "\\\\" in written or "\\'" in written):
+        why = why or "has a backslash escape, which Compose v1 and v2 read differently: write the text plainly"
+    nxt = after.end() if after else end + 1
+    if text[start] == "'":
+        return value, nxt, why          # single quotes: no escapes, no `${VAR}`
+    return _expanded_at(_GO_ESCAPES.sub(lambda m: _GO_ESCAPE.get(m[0][1], m[0]), value), env, why, nxt)
+
+
+def _env_expand(value: str, env: Mapping[str, str], why: str) -> tuple[str, str]:
+    """An unquoted or double-quoted value with `${VAR}` of earlier lines filled in, as v2 does; v1's
+    python-dotenv fills in only `${VAR}` and `${VAR:-default}`, and leaves `$VAR` and `$$` alone."""
+    if "$" not in value:
+        return value, why
+    missing: list[str] = []
+    expanded = _substitute(value, env, missing)
+    if missing:
+        why = why or (f"depends on ${{{missing[0]}}}, which no earlier line sets, so it comes from the robot's "
+                      "environment, which `check` cannot see: write the value")
+    elif _V1_UNREAD.search(value):
+        why = why or "has `$$`, `$NAME` or a `${...}` form that Compose v1 reads otherwise: write the value"
+    return expanded, why
+
+
+_GO_ESCAPES = re.compile(r"\\.", re.DOTALL)
+_V1_UNREAD = re.compile(r"\$(?!\{[A-Za-z_][A-Za-z0-9_]*(?::-[^${}]*)?\})")
+
+
+def _line_of(text: str, pos: int) -> int:
+    return text.count("\n", 0, pos) + 1
+
+
+def _first_line(text: str, pos: int) -> str:
+    return text[pos:_next_line(text, pos)].strip()[:80]
+
+
+def _next_line(text: str, pos: int) -> int:
+    end = text.find("\n", pos)
+    return len(text) if end < 0 else end + 1
+
+
+def interpolate(value: Any, env: Mapping[str, str], missing: list[str] | None = None) -> Any:
+    """Every string with compose's interpolation (_substitute), recursively; the names it needed
+    and .env does not set (the robot's environment, unseen here) are added to `missing`."""
     if isinstance(value, dict):
-        return {k: interpolate(v, env) for k, v in value.items()}
+        return {k: interpolate(v, env, missing) for k, v in value.items()}
     if isinstance(value, list):
-        return [interpolate(v, env) for v in value]
+        return [interpolate(v, env, missing) for v in value]
     if not isinstance(value, str) or "$" not in value:
         return value
+    return _substitute(value, env, [] if missing is None else missing)
 
-    def one(m: re.Match) -> str:
-        if m.group(1):
-            return "$"
-        name = m.group(2) or m.group(5)
-        current = env.get(name)
-        if m.group(3) in (":-", "-") and (current is None or (m.group(3) == ":-" and current == "")):
-            return m.group(4)
-        return current or ""
-    return _INTERPOLATION.sub(one, value)
+
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_BRACED = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:(:?[-+?])(.*))?", re.DOTALL)
+
+
+def _substitute(text: str, env: Mapping[str, str], missing: list[str], depth: int = 0) -> str:
+    """`text` as Compose v2 (compose-go's template) interpolates it: `$$`, `$NAME`, `${NAME}`,
+    `${NAME:-default}`, `${NAME-default}`, `${NAME:+alt}`, `${NAME+alt}`, `${NAME:?err}`, `${NAME?err}`,
+    with `${...}` nested in a default or alternative."""
+    out, i = [], 0
+    while (j := text.find("$", i)) >= 0:
+        out.append(text[i:j])
+        nxt = text[j + 1:j + 2]
+        if nxt == "$":
+            out.append("$")
+            i = j + 2
+        elif nxt == "{":
+            end = _closing_brace(text, j + 1)
+            if end < 0 or depth > 20:       # compose refuses an unclosed or absurdly nested one
+                missing.append(text[j:j + 40])
+                return "".join(out)
+            out.append(_braced(text[j + 2:end], env, missing, depth))
+            i = end + 1
+        elif name := _NAME.match(text, j + 1):
+            out.append(_lookup(name[0], env, missing) or "")
+            i = name.end()
+        else:
+            out.append("$")
+            i = j + 1
+    out.append(text[i:])
+    return "".join(out)
+
+
+def _closing_brace(text: str, start: int) -> int:
+    """compose-go's getFirstBraceClosingIndex from the `{` at `start`: every `{` opens one (and
+    the character after it is skipped), the `}` that closes the first ends the variable."""
+    depth, i = 0, start
+    while i < len(text):
+        if text[i] == "}":
+            depth -= 1
+            if depth == 0:
+                return i
+        if text[i] == "{":
+            depth += 1
+            i += 1
+        i += 1
+    return -1
+
+
+def _braced(body: str, env: Mapping[str, str], missing: list[str], depth: int) -> str:
+    found = _BRACED.fullmatch(body)
+    if found is None:                       # `${}`, `${1}`: compose refuses the file ("invalid template")
+        missing.append("${" + body[:40] + "}")
+        return ""
+    name, op, arg = found[1], found[2] or "", found[3] or ""
+    value = _lookup(name, env, missing)
+    unset = value is None or (op.startswith(":") and value == "")
+    if op.endswith("-"):
+        return _substitute(arg, env, missing, depth + 1) if unset else str(value)
+    if op.endswith("+"):
+        return "" if unset else _substitute(arg, env, missing, depth + 1)
+    return value or ""
+
+
+def _lookup(name: str, env: Mapping[str, str], missing: list[str]) -> str | None:
+    value = env.get(name)
+    if value is None:
+        missing.append(name)
+    return value
 
 
 def env_of(svc: Mapping[str, Any]) -> dict[str, str]:
@@ -538,12 +734,15 @@ def _host_changes_no_root(ctx: Context, host: Host) -> Iterator[Problem]:
 # ------------------------------------------------------- a robot's release
 
 @rule("compose-invalid", "error", "release",
-      "The rendered compose.yml is valid YAML with a `services` mapping, brings in nothing `check` cannot see "
-      "(`include`, `extends` from a file, `volumes_from`, `env_file`, a `container:NAME` namespace) and sets "
-      "only namespaced sysctls, and has no bare text that YAML 1.2 (Compose v2) reads as a number (`1e3`).",
+      "The rendered compose.yml is one YAML document with a `services` mapping, brings in nothing `check` cannot "
+      "see (`include`, `extends`, `volumes_from`, `env_file`, a `container:NAME` namespace, a variable from the "
+      "robot's environment) and sets only namespaced sysctls, and has no bare text that YAML 1.2 (Compose v2) "
+      "reads as a number (`1e3`) nor a boolean Compose refuses; its .env reads the same in Compose v1 and v2.",
       "Fix the compose template (the fleet file's `templates:` folder, or report a bug in the built-in one).")
 def _compose_invalid(ctx: Context, t: Target) -> Iterator[Problem]:
     where = ("templates",) if ctx.spec.templates else ()
+    for why in t.env_problems:
+        yield problem_at(ctx.spec, where, f"the .env rendered for {ROBOTS}: {why} (fix the .env template)")
     if t.compose_error or not isinstance((t.compose or {}).get("services"), dict):
         why = t.compose_error or "it has no `services:` mapping"
         yield problem_at(ctx.spec, where, (
@@ -561,6 +760,8 @@ def _compose_invalid(ctx: Context, t: Target) -> Iterator[Problem]:
     # a user's compose template renders them past it, so the rendered file is judged the same way.
     if "include" in (t.compose or {}):
         yield from _brings_in(ctx, t)
+    if t.release.compose_data is None:      # a user's template: the built-in writes real booleans, no ${VAR}
+        yield from _unread(ctx, t)
     for name, svc in t.services.items():
         # the built-in template's services have none of these keys: skip them at the cost of a lookup
         if isinstance(svc, dict) and not (_SUSPECT_KEYS.isdisjoint(svc) and
@@ -568,6 +769,70 @@ def _compose_invalid(ctx: Context, t: Target) -> Iterator[Problem]:
             yield from _brought_in(ctx, name, svc)
             for keypath, message in _refused_sysctls(name, svc):
                 yield _service_problem(ctx.spec, name, keypath, message)
+    yield from _schema_problems(ctx, t)
+
+
+def _unread(ctx: Context, t: Target) -> Iterator[Problem]:
+    """A user template's values `check` would judge otherwise than the robot's Compose: a boolean
+    Compose refuses, and a value that takes a variable from the robot's environment."""
+    for name, svc in t.services.items():
+        for keypath, what in _not_booleans(name, svc) if isinstance(svc, dict) else ():
+            yield _service_problem(ctx.spec, name, keypath, (
+                f"service {shown(name)} of {ROBOTS} has {what}, which is not a boolean Compose reads (true/false, "
+                "yes/no, y/n, on/off): compose would refuse the file; fix the compose template"))
+    for keypath, var in _robot_env_refs(t):
+        name = keypath[1] if keypath[0] == "services" and len(keypath) > 1 else ""
+        yield _service_problem(ctx.spec, name, ("templates",) if ctx.spec.templates else ("services",), (
+            f"the compose.yml rendered for {ROBOTS} has `{'.'.join(map(str, keypath))}`, which depends on "
+            f"${{{var}}}: the .env does not set it, so it comes from the robot's environment, which `check` cannot "
+            "see; write the value (or set it in the .env template)"))
+
+
+# Service keys Compose casts to a boolean (compose-go's interpolation casts): check reads them as it does.
+_BOOLEAN_KEYS = ("privileged", "read_only", "init", "tty", "stdin_open", "oom_kill_disable")
+_TRUE, _FALSE = frozenset({"true", "yes", "y", "on"}), frozenset({"false", "no", "n", "off"})
+
+
+def compose_bool(value: Any) -> bool | None:
+    """`value` as Compose casts it to a boolean (any case of true/yes/y/on, false/no/n/off, as the
+    YAML 1.1 words PyYAML reads); None when Compose refuses it ("1", "", "maybe")."""
+    if isinstance(value, bool):
+        return value
+    text = str(value).lower() if isinstance(value, str) else None
+    return True if text in _TRUE else False if text in _FALSE else None
+
+
+def _not_booleans(name: str, svc: Mapping[str, Any]) -> Iterator[tuple[tuple, str]]:
+    for key in _BOOLEAN_KEYS:
+        if key in svc and compose_bool(svc[key]) is None:
+            yield ("services", name, "compose", key), f"`{key}: {svc[key]!r}`"
+    for i, entry in enumerate(_as_list(svc.get("volumes"))):
+        if isinstance(entry, dict) and "read_only" in entry and compose_bool(entry["read_only"]) is None:
+            yield ("services", name, "volumes"), f"`read_only: {entry['read_only']!r}` on volume {i + 1}"
+
+
+# Service keys whose value from the robot's environment changes nothing `check` judges
+_UNJUDGED_KEYS = frozenset({"environment", "labels", "command", "entrypoint", "healthcheck", "container_name",
+                            "hostname", "working_dir", "stop_grace_period", "logging", "image"})
+
+
+def _robot_env_refs(t: Target) -> Iterator[tuple[tuple, str]]:
+    """(key path, variable) of each value of a user's compose.yml that takes a variable the .env
+    does not set: on the robot, Compose fills it from its own environment (`${HOME}`, `${USER}`)."""
+    raw = t.raw_compose or {}
+    services = raw.get("services")
+    places: list[tuple[tuple, Any]] = [(("services", n, k), v) for n, svc in
+                                       (services.items() if isinstance(services, dict) else ())
+                                       if isinstance(svc, dict) for k, v in svc.items() if k not in _UNJUDGED_KEYS]
+    places += [((k,), raw[k]) for k in ("volumes", "configs", "secrets", "networks") if k in raw]
+    for keypath, value in places:
+        for text in _texts(value):
+            if "$" in text:
+                missing: list[str] = []
+                _substitute(text, t.env, missing)
+                if missing:
+                    yield keypath, missing[0]
+                    break
 
 
 _SUSPECT_KEYS = frozenset({"extends", "volumes_from", "env_file", "pid", "ipc", "sysctls"})
@@ -604,14 +869,17 @@ def _texts(value: Any) -> list[str]:
     return found
 
 
-@rule("dds-peers-missing", "error", "release", "Off host networking, the DDS config lists explicit unicast peers.",
+@rule("dds-peers-missing", "error", "release", "The DDS config is valid XML and, off host networking, lists "
+      "explicit unicast peers.",
       "Render the peers from the deployed services (built-in templates do), or use `ros.network_mode: host`.")
 def _dds_peers(ctx: Context, t: Target) -> Iterator[Problem]:
-    if all(svc.get("network_mode") == "host" for svc in t.services.values() if isinstance(svc, dict)):
-        return
     name = "cyclonedds.xml" if ctx.spec.rmw == "cyclonedds" else "fastdds.xml"
     where = ("ros", "network_mode")
     xml = next((f.content for f in t.release.files if f.name == name), None)
+    if all(svc.get("network_mode") == "host" for svc in t.services.values() if isinstance(svc, dict)):
+        # no peers needed, but the robot's DDS loads the profile all the same: a malformed one breaks it
+        yield from _dds_unparsable(ctx, name, xml)
+        return
     if xml is None:
         yield problem_at(ctx.spec, where, f"no {name} was rendered for {ROBOTS}, whose services are not on host "
                                           "networking: DDS discovery needs it; check the templates")
@@ -626,6 +894,15 @@ def _dds_peers(ctx: Context, t: Target) -> Iterator[Problem]:
         yield problem_at(ctx.spec, where, (
             f"services of {ROBOTS} are on a bridge network, which carries no multicast, and {name} lists no "
             "unicast peers: nodes would not discover each other; render the peers or use network_mode: host"))
+
+
+def _dds_unparsable(ctx: Context, name: str, xml: str | None) -> Iterator[Problem]:
+    try:
+        if xml is not None:
+            dds_peers(xml)
+    except ET.ParseError as exc:
+        yield problem_at(ctx.spec, ("templates",) if ctx.spec.templates else ("ros",),
+                         f"the {name} rendered for {ROBOTS} is not valid XML ({exc}): fix its template")
 
 
 @rule("domain-id-not-injected", "error", "release", "ROS_DOMAIN_ID comes from the robot's .env, never hard-coded.",
@@ -647,6 +924,58 @@ def _domain_injected(ctx: Context, t: Target) -> Iterator[Problem]:
 # ------------------------------------------------- a service of a release
 
 Finding = Iterator[tuple[tuple, str]]   # (key path in the fleet file, message)
+
+
+# ------------------------------------------------- a user template's host files (template_output.py)
+
+# (template, rendered file): installed as root by hostchanges-root.sh, where cron, logrotate and udev run them.
+_HOST_TEMPLATES = (("logrotate.cron.j2", "logrotate.cron"), ("logrotate.conf.j2", "logrotate.conf"),
+                   ("udev.rules.j2", "99-rosdeploy.rules"))
+
+
+@functools.lru_cache(maxsize=64)
+def _overridden(templates: str | None, name: str) -> bool:
+    """Whether the fleet's `templates:` folder replaces the built-in template `name` (once per process)."""
+    return bool(templates) and (Path(str(templates)) / name).is_file()
+
+
+@rule("host-template-root", "error", "release",
+      "A user template's udev rules, logrotate.conf and logrotate.cron, which are installed as root, do only what "
+      "the built-in ones do: no program runs, no path outside the project's logs.",
+      "Remove the line from the template in the fleet file's `templates:` folder (or delete the override); give "
+      "other root jobs to your provisioning.")
+def _host_template_root(ctx: Context, t: Target) -> Iterator[Problem]:
+    from rosdeploy import template_output
+    files = {f.name: f.content for f in t.release.files}
+    for template, name in _HOST_TEMPLATES:
+        if name not in files or not _overridden(ctx.spec.templates, template):
+            continue     # the built-in template's output: nothing to read back
+        if name == "99-rosdeploy.rules":
+            from rosdeploy.hostchanges import RULES_DIR, rules_name
+            found = template_output.udev_findings(files[name], f"{RULES_DIR}/{rules_name(ctx.spec.project)}")
+        else:
+            expected = template_output.rotation_for(ctx.spec, t.host)
+            read = template_output.cron_findings if name == "logrotate.cron" else template_output.logrotate_findings
+            found = read(files[name], expected)
+        source = Path(str(ctx.spec.templates)) / template
+        for finding in found:
+            yield problem_at(ctx.spec, ("templates",), f"{finding.message} (the {name} rendered for {ROBOTS} from "
+                                                       f"your template {source})")
+
+
+def _schema_problems(ctx: Context, t: Target) -> Iterator[Problem]:
+    """compose-invalid, for a compose template's output: the Compose schema, as fleet.py holds `compose:` to it.
+    A key only v1 refuses (`gpus`, top-level `name`) is let through: Compose v2 reads it."""
+    if t.release.compose_data is not None or t.compose is None:
+        return     # the built-in template writes from checked data; an unparsable file is said above
+    from rosdeploy.template_output import compose_schema_findings
+    for finding in compose_schema_findings(t.compose):
+        if finding.v2_accepts or finding.path[-1:] in (("privileged",), ("read_only",)):
+            continue     # v2 reads it; or the boolean reading of _privileges/_writable says it already
+        at = ".".join(map(str, finding.path)) or "the top level"
+        yield problem_at(ctx.spec, ("templates",) if ctx.spec.templates else (), (
+            f"the compose.yml rendered for {ROBOTS} breaks the Compose schema at {at}: {finding.message}; Compose "
+            "refuses the file at `up` on every robot: fix the compose template"))
 
 
 @rule("image-unversioned", "error", "service", "Every image carries an explicit version tag or digest, never `latest`.",
@@ -671,7 +1000,8 @@ def _healthcheck_missing(ctx: Context, t: Target, name: str, svc: dict) -> Findi
     if declared is not None and declared.healthcheck_from_image:
         return
     test = check.get("test") if isinstance(check, dict) else None
-    if not isinstance(check, dict) or check.get("disable") or test in (["NONE"], "NONE", None):
+    if not isinstance(check, dict) or compose_bool(check.get("disable", False)) is not False or \
+            test in (["NONE"], "NONE", None):
         yield ("services", name, "healthcheck"), (
             f"service {shown(name)} has no health check: a crashed-but-running node looks healthy to the deploy gate "
             "and to depends_on; add `healthcheck:` (or `healthcheck: image` to trust the image's HEALTHCHECK)")
@@ -727,6 +1057,9 @@ def _outside_keys(svc: Mapping[str, Any]) -> Iterator[tuple[str, str]]:
     extends = svc.get("extends")
     if isinstance(extends, dict) and extends.get("file"):
         yield "extends", f"a service from another compose file ({shown(str(extends['file']))})"
+    elif extends is not None:       # compose merges the other service's keys in, after `check` has judged this one
+        other = extends.get("service") if isinstance(extends, dict) else extends
+        yield "extends", f"the keys of service {shown(str(other))}, merged in as compose resolves it"
     if svc.get("volumes_from"):
         yield "volumes_from", "another container's mounts"
     if svc.get("env_file"):
@@ -787,7 +1120,7 @@ _ROOT_CAPS = frozenset({"ALL", "SYS_ADMIN", "SYS_MODULE", "SYS_RAWIO", "SYS_PTRA
 def _privileges(svc: dict) -> Iterator[tuple[str, str]]:
     """(compose key, what it grants) for each way a service config is privileged: `privileged:`
     itself and the keys that amount to it piece by piece."""
-    if svc.get("privileged") is True:
+    if compose_bool(svc.get("privileged")):
         yield "privileged", "runs privileged"
     for key in ("pid", "userns_mode"):
         if svc.get(key) == "host":
@@ -1007,6 +1340,20 @@ def _robot_mounts(spec: FleetSpec, t: Target, svc: dict) -> Iterator[tuple[str, 
         elif written in binds:
             device, read_only = binds[written]
             yield written, _robot_path(device, robot.home, robot.release), not read_only and _writable(entry)
+    for source in _file_refs(t, svc):     # outside swarm, a config's or secret's `file:` is a read-only bind
+        yield source, _robot_path(source, robot.home, robot.release), False
+
+
+def _file_refs(t: Target, svc: Mapping[str, Any]) -> Iterator[str]:
+    """The `file:` of each top-level config or secret the service uses."""
+    for kind in ("configs", "secrets"):
+        entries = _as_list(svc.get(kind))
+        defined = _dig(t.compose, kind) if entries else {}
+        for entry in entries:
+            source = entry.get("source") if isinstance(entry, dict) else entry
+            found = defined.get(source) if isinstance(source, str) else None
+            if isinstance(found, dict) and isinstance(found.get("file"), str):
+                yield found["file"]
 
 
 @functools.lru_cache(maxsize=4096)    # pure, and a fleet's robots share their mounts: once per entry
@@ -1091,7 +1438,7 @@ def _holds(source: str, folder: str) -> str:
 def _writable(entry: Any) -> bool:
     """A service's mount without read-only (`name:dst:ro` or the long form's read_only)."""
     if isinstance(entry, dict):
-        return not entry.get("read_only")
+        return not compose_bool(entry.get("read_only", False))
     parts = str(entry).split(":")
     return len(parts) > 1 and "ro" not in (parts[2].split(",") if len(parts) > 2 else ())
 
@@ -1099,7 +1446,7 @@ def _writable(entry: Any) -> bool:
 def _bind_writable(entry: Any) -> bool:
     """A bind mount from a robot path, without read-only (`src:dst:ro` or the long form's read_only)."""
     if isinstance(entry, dict):
-        return entry.get("type", "bind") == "bind" and not entry.get("read_only")
+        return entry.get("type", "bind") == "bind" and not compose_bool(entry.get("read_only", False))
     parts = str(entry).split(":")
     return len(parts) > 1 and "ro" not in (parts[2].split(",") if len(parts) > 2 else ())
 

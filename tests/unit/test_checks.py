@@ -403,6 +403,16 @@ def test_fleet_octal_number_shows_what_the_file_read_found() -> None:
     assert (p.file, p.line, p.key) == ("fleet.yml", 9, "vars.port") and "octal (15)" in p.message
     silent("fleet-octal-number")
 
+
+def test_host_template_root_reads_overridden_host_files(tmp_path: Path) -> None:
+    (tmp_path / "logrotate.cron.j2").write_text("# the override")
+    h = host()
+    hostile = release(h, extra={"logrotate.cron": '* * * * * root /bin/sh -c "id > /tmp/pwned"\n'})
+    p = fires("host-template-root", fleet=spec(templates=str(tmp_path)), hosts=[h], releases=[hostile])
+    assert "logrotate.cron line 1" in p.message and "/etc/cron.d/rosdeploy-p" in p.message
+    assert "logrotate.cron.j2" in p.message
+    silent("host-template-root", hosts=[h], releases=[hostile])    # no override: the built-in template wrote it
+
 def test_every_rule_is_tested_and_documented() -> None:
     for r in RULES.values():
         assert r.severity in checks.SEVERITIES and r.scope in ("fleet", "host", "release", "service")
