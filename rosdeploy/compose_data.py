@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
+from rosdeploy.compose_env import interpolate
+
 
 class _Raw:
     """The file as written: literals with `$$`, .env references as `${NAME:?...}`."""
@@ -28,7 +30,7 @@ class _Raw:
 
 
 class _Resolved(_Raw):
-    """The file as compose reads it, interpolated with the robot's .env (checks.interpolate's result)."""
+    """The file as compose reads it, interpolated with the robot's .env (compose_env.interpolate's result)."""
 
     def __init__(self, env: Mapping[str, str]) -> None:
         self.env = env
@@ -41,7 +43,6 @@ class _Resolved(_Raw):
         return self.env.get(name) or ""
 
     def extra(self, svc: Any) -> Mapping[str, Any]:
-        from rosdeploy.checks import interpolate
         return interpolate(svc.extra, self.env)
 
 

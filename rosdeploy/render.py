@@ -27,7 +27,8 @@ import jinja2
 import yaml
 
 from rosdeploy import restarts, rotation
-from rosdeploy.checks import host_problem, parse_env
+from rosdeploy.checks import host_problem
+from rosdeploy.compose_env import parse_env
 from rosdeploy.compose_data import compose_data
 from rosdeploy.errors import InputError, Problem, RenderError, shown
 from rosdeploy.files import FILES_DIR, MAX_TEMPLATE_BYTES, FileRenderer, reads_as_other, represent_text

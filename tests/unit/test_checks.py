@@ -15,7 +15,8 @@ import pytest
 import yaml
 
 from rosdeploy import checks
-from rosdeploy.checks import RULES, dds_peers, interpolate, parse_env, run_checks
+from rosdeploy.checks import RULES, dds_peers, run_checks
+from rosdeploy.compose_env import interpolate, parse_env
 from rosdeploy.model import (FleetSpec, HealthCheck, Host, RenderedFile, RenderedRelease, RolloutPolicy, Service, Topic,
                              frozen_map)
 

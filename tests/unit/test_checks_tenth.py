@@ -13,7 +13,8 @@ from typing import Any
 import pytest
 import yaml
 
-from rosdeploy.checks import RULES, compose_bool, interpolate, parse_env, read_env, run_checks
+from rosdeploy.checks import RULES, compose_bool, run_checks
+from rosdeploy.compose_env import interpolate, parse_env, read_env
 from test_checks import FASTDDS_PEERS, GOOD_SERVICE, host, release, spec
 import test_hostile
 from test_checks_ninth import user_template

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from rosdeploy.checks import interpolate, parse_env
+from rosdeploy.compose_env import interpolate, parse_env
 from rosdeploy.model import HealthCheck
 from rosdeploy.project import load_project
 from rosdeploy.render import Renderer
