@@ -722,6 +722,8 @@ def _overridden(templates: str | None, name: str) -> bool:
       "Remove the line from the template in the fleet file's `templates:` folder (or delete the override); give "
       "other root jobs to your provisioning.")
 def _host_template_root(ctx: Context, t: Target) -> Iterator[Problem]:
+    if not ctx.spec.templates:
+        return      # the built-in templates wrote every file
     from rosdeploy import template_output
     files = {f.name: f.content for f in t.release.files}
     for template, name in _HOST_TEMPLATES:
