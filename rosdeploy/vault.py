@@ -474,7 +474,7 @@ class Vault:
                 return
         budget = MAX_KDF_WORK // _DEFAULT_WORK
         raise _error(source, f"decrypting this takes the command past its key-derivation budget ({budget} derivations "
-                             f"at rosdeploy's default scrypt cost, ~5 s; {spent / _DEFAULT_WORK:g} spent): too many "
+                             f"at rosdeploy's default scrypt cost, ~20 s; {spent / _DEFAULT_WORK:g} spent): too many "
                              "`!vault` values or vault files, costly scrypt headers, or vault ids tried before the "
                              "right one. Keep secrets in a few vault-encrypted vars files (one derivation each) "
                              "rather than many `!vault` values, re-encrypt costly ones with `rosdeploy vault "
