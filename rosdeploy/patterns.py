@@ -43,7 +43,6 @@ import signal
 import threading
 import warnings as pywarnings
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from typing import Callable, Iterator, Mapping, Sequence
 
 from rosdeploy import suggest
@@ -253,19 +252,15 @@ def _budget(pattern: str, where: str) -> Iterator[None]:
         signal.signal(signal.SIGALRM, signal.SIG_DFL if previous is None else previous)
 
 
-@dataclass(frozen=True)
 class _Names:
     """The names one pattern is matched against, looked up by name (a host or group name costs
     one dictionary lookup, whatever the count), with each wildcard's compiled test kept."""
-    hosts: Sequence[str]
-    groups: Mapping[str, Sequence[str]]
-    where: str
-    known: frozenset[str] = field(init=False)
-    tests: dict[str, Callable[[str], bool]] = field(default_factory=dict)
-    notes: list[Problem] = field(default_factory=list)   # warnings from compiling a regex
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "known", frozenset(self.hosts))   # frozen: set once, here
+    def __init__(self, hosts: Sequence[str], groups: Mapping[str, Sequence[str]], where: str) -> None:
+        self.hosts, self.groups, self.where = hosts, groups, where
+        self.known = frozenset(hosts)
+        self.tests: dict[str, Callable[[str], bool]] = {}
+        self.notes: list[Problem] = []      # warnings from compiling a regex
 
     def test(self, base: str) -> Callable[[str], bool]:
         if base not in self.tests:

@@ -553,9 +553,14 @@ class KnownHosts:
     hashed: tuple[int, ...]                           # the entries of hashed names
     patterned: tuple[int, ...]                        # entries with a `*`, `?` or `!` pattern
     revoked: frozenset[tuple[str, bytes]]             # (key type, key blob)
-    notes: tuple[tuple[int | None, str], ...]         # (line, what was skipped there and why), grouped
     path: str = ""
-    skipped: tuple[tuple[int, str], ...] = ()         # (line, why it was skipped): every skipped line
+    skipped: tuple[tuple[int, str, str], ...] = ()    # (line, kind, why it was skipped): every skipped line
+
+    @property
+    def notes(self) -> tuple[tuple[int, str], ...]:
+        """The skipped lines grouped by kind: one note each (a HostKeyError's message)."""
+        kinds = {kind: [n for n, k, _ in self.skipped if k == kind] for kind in ("authority", "unreadable", "revoked")}
+        return _notes(kinds["authority"], kinds["unreadable"], kinds["revoked"])
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -697,11 +702,8 @@ def parse_known_hosts(lines: list[str], path: str) -> KnownHosts:
         else:
             for name in field.lower().split(","):
                 plain.setdefault(name, []).append(i)
-    kinds = {kind: [n for n, k, _ in skipped if k == kind] for kind in ("authority", "unreadable", "revoked")}
     return KnownHosts(tuple(kept), {name: tuple(found) for name, found in plain.items()}, tuple(hashed),
-                      tuple(patterned), frozenset(revoked),
-                      _notes(kinds["authority"], kinds["unreadable"], kinds["revoked"]), path,
-                      tuple((n, why) for n, _, why in skipped))
+                      tuple(patterned), frozenset(revoked), path, tuple(skipped))
 
 
 _CERT_AUTHORITY = ("an @cert-authority line, skipped: rosdeploy cannot verify SSH host certificates (paramiko does "
@@ -814,7 +816,7 @@ MAX_SKIPPED_SHOWN = 20     # lines named one by one in a file; a summary for the
 def _each_line(known: KnownHosts) -> tuple[tuple[int | None, str], ...]:
     shown, rest = known.skipped[:MAX_SKIPPED_SHOWN], known.skipped[MAX_SKIPPED_SHOWN:]
     more = ((rest[0][0], f"and {len(rest)} more line(s) skipped from here on, not named one by one"),) if rest else ()
-    return (*shown, *more)
+    return (*((n, why) for n, _, why in shown), *more)
 
 
 def _parsed_host_keys(path: str) -> KnownHosts:
@@ -824,7 +826,7 @@ def _parsed_host_keys(path: str) -> KnownHosts:
     try:
         return _host_keys_file(path, os.stat(path).st_mtime_ns)
     except (FileNotFoundError, NotADirectoryError):
-        return KnownHosts((), {}, (), (), frozenset(), (), path)
+        return KnownHosts((), {}, (), (), frozenset(), path)
     except OSError as exc:
         raise UnusableKnownHosts(path, f"cannot be read: {exc.strerror or exc}") from None
 

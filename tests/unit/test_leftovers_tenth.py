@@ -68,7 +68,7 @@ BAD_LINES = [f"@cert-authority *.fleet ssh-ed25519 {K1}",      # 1
 
 def test_every_skipped_known_hosts_line_is_named_with_why() -> None:
     known = transport.parse_known_hosts([*BAD_LINES, f"robot1 ssh-ed25519 {K1}"], "kh")
-    why = dict(known.skipped)
+    why = {line: reason for line, _, reason in known.skipped}
     assert sorted(why) == list(range(1, 9)), known.skipped
     assert "@cert-authority" in why[1] and "certificates" in why[1]
     assert "not a host key line" in why[2]
