@@ -1223,13 +1223,20 @@ def _tmpfs_targets(tmpfs: Any) -> list[tuple[KeyPath, str]]:
 
 
 def _compose_tmpfs(r: Reader, kp: KeyPath, tmpfs: Any) -> None:
-    """`tmpfs: [/dev/shm]` would hide rosdeploy's own mounts (the DDS shared memory, logs, profile)."""
+    """`tmpfs: [/dev/shm]` would hide rosdeploy's own mounts (the DDS shared memory, logs, profile);
+    one in /proc or /sys stops the container from being created, as a bind mount there does."""
     for where, target in _tmpfs_targets(tmpfs):
-        taken = managed_mount(target) if target.startswith("/") else None
+        if not target.startswith("/"):
+            continue
+        taken = managed_mount(target)
         if taken:
             r.error(kp + where,
                     f"{target} is where rosdeploy mounts {taken} itself: a tmpfs there would replace it; "
                     "choose another container path")
+            continue
+        problem = proc_mount_problem(normal_path(target))
+        if problem:
+            r.error(kp + where, f"a tmpfs at {problem}" if problem.startswith("/") else problem)
 
 
 def _compose_schema(r: Reader, kp: KeyPath, extra: dict) -> None:

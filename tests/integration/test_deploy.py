@@ -5,6 +5,7 @@ only what rosdeploy says.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shlex
@@ -12,6 +13,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Iterator
 
 import pytest
 import yaml
@@ -21,6 +23,7 @@ from rosdeploy import sim as simulator
 from rosdeploy.errors import EXIT_ABORTED, EXIT_OK, EXIT_PARTIAL
 from robots import RobotShell, all_healthy, identity, rosdeploy, shells, versions, write_fleet, write_inventory
 from robots import apply as deploy
+from conftest import connect
 
 pytestmark = pytest.mark.integration
 
@@ -28,9 +31,18 @@ pytestmark = pytest.mark.integration
 
 
 def test_first_deploy_noop_and_single_robot_upgrade(fleet, fleet_file: Path) -> None:
-    first = deploy(fleet_file)
-    assert first.code == EXIT_OK, first.stderr
     robots = shells(fleet)
+    # A robot whose login environment sets ROS_DOMAIN_ID (ROS's setup guides put it in
+    # /etc/environment or ~/.bashrc): Compose prefers the shell's value to .env's for ${VAR}.
+    with login_env(fleet, "robot1", "export ROS_DOMAIN_ID=99 RMW_IMPLEMENTATION=rmw_nonexistent_cpp"):
+        first = deploy(fleet_file)
+        assert first.code == EXIT_OK, first.stderr
+    env = robots["robot1"].run("cat /home/robot/rosdeploy/demo/current/.env")
+    want = {line for line in env.splitlines() if line.startswith(("ROS_DOMAIN_ID=", "RMW_IMPLEMENTATION="))}
+    assert len(want) == 2 and "ROS_DOMAIN_ID=99" not in want, env
+    driver = robots["robot1"].containers()["driver"]["id"]
+    running = set(json.loads(robots["robot1"].run(f"docker inspect --format '{{{{json .Config.Env}}}}' {driver}")))
+    assert want <= running, (want, running)
     for name, shell in robots.items():
         assert first.host(name)["outcome"] == "deployed"
         assert versions(shell) == {"driver": "1.0.0", "perception": "1.0.0"}
@@ -62,6 +74,23 @@ def test_first_deploy_noop_and_single_robot_upgrade(fleet, fleet_file: Path) -> 
     assert by_host["robot2"]["version"] == "1.1.0" and by_host["robot2"]["drift"] is True
     assert by_host["robot1"]["version"] == "1.0.0" and by_host["robot1"]["healthy"]
     assert status.code == EXIT_PARTIAL, "drift is reported in the exit code"
+
+
+@contextlib.contextmanager
+def login_env(fleet, name: str, line: str) -> Iterator[None]:
+    """`line` first in the robot user's ~/.bashrc (bash reads it for an SSH command), for the block."""
+    shell = RobotShell(fleet, name)
+    shell.run(f"cp -p /home/robot/.bashrc /home/robot/.bashrc.orig && sed -i 1i{shlex.quote(line)} /home/robot/.bashrc")
+    try:
+        client = connect(fleet, name)
+        try:
+            _, out, _ = client.exec_command("sh -c 'echo $ROS_DOMAIN_ID'", timeout=30)
+            assert out.read().decode().strip() == "99", "the robot user's SSH commands must see the line"
+        finally:
+            client.close()
+        yield
+    finally:
+        shell.run("mv /home/robot/.bashrc.orig /home/robot/.bashrc")
 
 
 def test_bad_release_rolls_back_every_robot_to_what_it_ran(fleet, fleet_file: Path) -> None:
