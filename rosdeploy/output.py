@@ -44,6 +44,7 @@ class Output:
         self.documented = False          # the one JSON document of this run was written (or held)
         self.hold = hold
         self._held: dict | None = None
+        self._also: dict[str, Any] = {}   # fields for the document, known before it is built (also())
         self._secrets: set[str] = set()
         self._pattern: re.Pattern[str] | None = None
         self._wording: tuple[int, tuple[str, ...]] | None = None   # (modules looked at, _ours())
@@ -148,8 +149,15 @@ class Output:
     def warn(self, text: str) -> None:
         self._write(self.stderr, _paint(text, "yellow", self.color_err))
 
+    def also(self, fields: dict[str, Any]) -> None:
+        """Fields the run's document carries whoever builds it (the command, or a failure's error),
+        unless it has them itself: what loading the fleet warned about is known before either."""
+        self._also.update(fields)
+
     def document(self, data: Any) -> None:
         """The one JSON document of a --json run; held until finish() when `hold` is set."""
+        if isinstance(data, dict):
+            data = {**self._also, **data}
         if self.hold and isinstance(data, dict):
             self._held = dict(data)
             self.documented = True

@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import os
 import re
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any, NoReturn, Sequence
 
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
-                              EXIT_PARTIAL, InputError, shown)
+                              EXIT_PARTIAL, InputError, Problem, shown)
 
 if TYPE_CHECKING:
     from rosdeploy.output import Output
@@ -241,11 +242,33 @@ def add_fleet_args(parser: argparse.ArgumentParser, *, limit: bool = True, versi
     add_vault_options(parser)
 
 
-def inventory_targets(project: Any, limit: str | None, out: Output) -> tuple[Any, ...]:
-    """--limit's robots; the inventory's warnings and a pattern's unmatched terms are printed, as
-    Ansible prints its warnings (another tool's vars, duplicate keys, `web:nomatch`)."""
-    found: list[Any] = []
+# The rule ids of what loading the robots warns about, in a --json document (`problems`,
+# `findings`, `warnings`): the inventory's own warnings, and --limit's terms that match nothing.
+# Neither is a checklist rule (no `fix`): the message says what to do.
+INVENTORY_RULE = "inventory"
+LIMIT_RULE = "limit"
+
+
+def inventory_targets(project: Any, limit: str | None, out: Output) -> tuple[tuple[Any, ...], tuple[Problem, ...]]:
+    """--limit's robots and the warnings of choosing them: printed, as Ansible prints its warnings
+    (another tool's vars, duplicate keys, `web:nomatch`), and returned, for the --json document
+    and the warning count (a CI reading only the document must see "your `devices` was ignored")."""
+    found: list[Problem] = []
     hosts = project.targets(limit, found)
-    for problem in (*project.inventory.warnings, *found):
+    warnings = (*_as_warnings(project.inventory.warnings, INVENTORY_RULE), *_as_warnings(found, LIMIT_RULE))
+    for problem in warnings:
         out.warn(f"warning: {problem}")
-    return tuple(hosts)
+    return tuple(hosts), warnings
+
+
+def _as_warnings(problems: Sequence[Problem], rule: str) -> tuple[Problem, ...]:
+    # severity "warning" whatever they were made with: some take Problem's default, yet stop nothing
+    return tuple(replace(p, severity="warning", rule=p.rule or rule) for p in problems)
+
+
+def warnings_json(out: Output, warnings: Sequence[Problem]) -> None:
+    """`warnings` in the --json document of a command with no list of problems of its own (render,
+    plan, apply...), whoever builds it: the command, or the error that stops it later."""
+    if out.as_json:     # not otherwise: problem_json imports the checklist, which a rollback never needs
+        from rosdeploy.cli.offline import problem_json
+        out.also({"warnings": [problem_json(p) for p in warnings]})

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
-from rosdeploy.cli.common import add_command, add_fleet_args, inventory_targets, path_arg
+from rosdeploy.cli.common import add_command, add_fleet_args, inventory_targets, path_arg, warnings_json
 from rosdeploy.cli.vault import load_masked
 from rosdeploy.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, Problem
 from rosdeploy.output import Output, one_line
@@ -49,15 +49,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_check)
 
 
-def _load(args: argparse.Namespace, out: Output, pick_up: bool = False) -> tuple[Any, tuple[Host, ...]]:
-    """`pick_up` (validate, check): with --limit, the robots pending for this version too, which
+def _load(args: argparse.Namespace, out: Output, pick_up: bool = False,
+          ) -> tuple[Any, tuple[Host, ...], tuple[Problem, ...]]:
+    """The project, its robots, and the warnings of loading them (common.inventory_targets).
+    `pick_up` (validate, check): with --limit, the robots pending for this version too, which
     `apply` with the same --limit takes (render writes only the robots asked for)."""
     project = load_masked(args, out, args.release_version)
-    hosts = inventory_targets(project, args.limit, out)
+    hosts, warnings = inventory_targets(project, args.limit, out)
     if pick_up and args.limit is not None:
         from rosdeploy.cli import pending as pending_cli
         hosts = pending_cli.with_pending(project, hosts, out, doing="validating")
-    return project, hosts
+    return project, hosts, warnings
 
 
 # ---------------------------------------------------------------- validate
@@ -65,23 +67,30 @@ def _load(args: argparse.Namespace, out: Output, pick_up: bool = False) -> tuple
 def cmd_validate(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.project import validate
 
-    project, hosts = _load(args, out, pick_up=True)
+    project, hosts, loaded = _load(args, out, pick_up=True)
     problems = validate(project, hosts)
     errors = [p for p in problems if p.severity == "error"]
     if out.as_json:
         out.document({"ok": not errors, "fleet": args.fleet, "project": project.spec.project,
                       "version": project.spec.version, "robots": [h.name for h in hosts],
-                      "problems": [problem_json(p) for p in problems], **failed_json(errors)})
+                      "problems": _problems_json(problems, loaded), **failed_json(errors)})
     else:
-        _print_problems(out, problems)
+        _print_problems(out, problems)     # the loading warnings were printed as they came
     if errors:
         out.error(f"{len(errors)} error(s): not deployable; fix the files above and run validate again")
         return EXIT_INPUT
     spec = project.spec
-    warned = len(problems) - len(errors)
+    warned = len(problems) - len(errors) + len(loaded)
     out.line(f"OK {args.fleet}: project {spec.project} version {spec.version}, {len(spec.services)} service(s), "
              f"{len(hosts)} robot(s)" + (f", {warned} warning(s)" if warned else ""))
     return EXIT_OK
+
+
+def _problems_json(problems: Sequence[Problem], loaded: Sequence[Problem]) -> list[dict[str, Any]]:
+    """The rules' problems and the warnings of loading the robots, in one list in the rules' order
+    (errors first), as `--json` readers find every warning in it."""
+    from rosdeploy import checks
+    return [problem_json(p) for p in sorted([*problems, *loaded], key=checks.sort_key)]
 
 
 def _print_problems(out: Output, problems: Sequence[Problem]) -> None:
@@ -94,12 +103,14 @@ def _print_problems(out: Output, problems: Sequence[Problem]) -> None:
 def cmd_render(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.project import deployable
 
-    project, hosts = _load(args, out)
+    project, hosts, loaded = _load(args, out)
+    warnings_json(out, loaded)      # in the document of a render the fleet's errors stop, too
     root = Path(args.out)
     _check_out(root, Path(project.spec.inventory), [host.name for host in hosts])
     releases, warnings = _render_to(root, lambda sink: deployable(project, hosts, sink))   # or exit 2
     for warning in warnings:
         out.warn(f"{warning.severity}: {warning}")
+    warnings_json(out, [*loaded, *warnings])
     written = [root / name for name in releases]
     if out.as_json:
         robots = [_release_json(r, d) for r, d in zip(releases.values(), written, strict=True)]
@@ -183,19 +194,20 @@ def _release_json(release: RenderedRelease, folder: Path) -> dict[str, Any]:
 def cmd_check(args: argparse.Namespace, out: Output) -> int:
     from rosdeploy.project import findings
 
-    project, hosts = _load(args, out, pick_up=True)
+    project, hosts, loaded = _load(args, out, pick_up=True)
     problems = findings(project, hosts)
     errors = sum(p.severity == "error" for p in problems)
     if out.as_json:
         out.document({"ok": not errors, "fleet": args.fleet, "robots": [h.name for h in hosts],
-                      "findings": [problem_json(p) for p in problems],
+                      "findings": _problems_json(problems, loaded),
                       **failed_json([p for p in problems if p.severity == "error"])})
         return EXIT_INPUT if errors else EXIT_OK
     colors = {"error": "red", "warning": "yellow", "info": "dim"}
     for p in problems:   # the findings are this command's output: stdout, so `check > report.txt` works
         out.line(out.paint(f"{p.severity}[{p.rule or 'input'}] {p}", colors.get(p.severity, "bold")))
     from rosdeploy import checks
-    counts = {s: sum(p.severity == s for p in problems) for s in checks.SEVERITIES}
+    # the loading warnings were printed (on stderr) as they came, and are counted with the findings
+    counts = {s: sum(p.severity == s for p in (*problems, *loaded)) for s in checks.SEVERITIES}
     tally = ", ".join(f"{n} {s}(s)" for s, n in counts.items() if n) or "no findings"
     out.line(f"{'FAIL' if errors else 'OK'} {args.fleet}: {len(hosts)} robot(s), {tally}")
     return EXIT_INPUT if errors else EXIT_OK

@@ -13,10 +13,11 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from rosdeploy.cli import images
 from rosdeploy.cli.common import (INTERRUPTED_RUN, Parser, add_command, add_fleet_args, duration, fail_limit,
-                                  group_prefix, inventory_targets, positive_int, release_word, waves)
+                                  group_prefix, inventory_targets, positive_int, release_word, warnings_json,
+                                  waves)
 from rosdeploy.cli.vault import load_masked
 from rosdeploy.errors import (EXIT_ABORTED, EXIT_DECLINED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK,
-                              EXIT_PARTIAL, InputError)
+                              EXIT_PARTIAL, InputError, Problem)
 from rosdeploy.output import Output, confirm
 
 if TYPE_CHECKING:   # model.py costs 7 ms of dataclasses at import; --help needs none of it
@@ -128,28 +129,33 @@ def load(args: argparse.Namespace, out: Output, render: bool = True,
     from rosdeploy.project import deployable
 
     project = load_masked(args, out, getattr(args, "release_version", None))
-    hosts = inventory_targets(project, args.limit, out)
+    hosts, loaded = inventory_targets(project, args.limit, out)
+    warnings_json(out, loaded)      # the document's `warnings`, whatever stops the command later
     if getattr(args, "pick_up", False):     # apply: robots still pending for this fleet file and version
         from rosdeploy.cli import pending as pending_cli
         hosts = pending_cli.with_pending(project, hosts, out)
     on_targets(project, hosts)
-    _known_hosts_notes(project.spec, hosts, out)
+    loaded += _known_hosts_notes(project.spec, hosts, out)
+    warnings_json(out, loaded)
     if not render:
         return project, hosts, {}
     releases, warnings = deployable(project, hosts)
     for warning in warnings:
         out.warn(f"{warning.severity}: {warning}")
+    warnings_json(out, [*loaded, *warnings])
     return project, hosts, releases
 
 
-def _known_hosts_notes(spec: FleetSpec, hosts: tuple[Host, ...], out: Output) -> None:
+def _known_hosts_notes(spec: FleetSpec, hosts: tuple[Host, ...], out: Output) -> tuple[Problem, ...]:
     """Lines of the robots' known_hosts files that were skipped, whether or not a robot's key is found:
     a skipped @revoked line leaves a key trusted. Here, not in validate: reading keys needs paramiko,
     which commands that connect load anyway (validate stays free of its ~0.2 s import)."""
     from rosdeploy import transport
 
-    for problem in transport.known_hosts_problems(hosts, ssh_options(spec)):
+    problems = tuple(transport.known_hosts_problems(hosts, ssh_options(spec)))
+    for problem in problems:
         out.warn(f"{problem.severity}: {problem}")
+    return problems
 
 
 def context(args: argparse.Namespace, spec: FleetSpec, progress: Callable[[str, str], None]) -> RunContext:

@@ -168,8 +168,7 @@ def _run(path: Path, args: list[str], draft: Draft,
             return refuse(f"{command} did not finish within {TIMEOUT:g} s: fix the script or export its output "
                           "to a YAML file")
         if stopped == "size":
-            return refuse(f"{command} printed more than {MAX_OUTPUT >> 20} MB: a dynamic inventory prints a "
-                          "JSON object of groups; fix the script or export its output to a YAML file")
+            return refuse(_too_long(command, os.fstat(err.fileno()).st_size > MAX_OUTPUT, what))
         out.seek(0)
         err.seek(max(0, os.fstat(err.fileno()).st_size - 4 * MAX_STDERR))   # only its end is quoted
         stdout, stderr = out.read(), err.read()
@@ -190,6 +189,16 @@ def _run(path: Path, args: list[str], draft: Draft,
     if found is not None:   # json.loads reads a lone `\\ud800`; no file rosdeploy writes can hold it
         return refuse(f"{command} printed a value at {dotted(found[0]) or 'the top'} that {found[1]}")
     return data
+
+
+def _too_long(command: str, on_stderr: bool, what: str) -> str:
+    """Which stream ran past MAX_OUTPUT: a script logging without end on stderr is not told that
+    its JSON is too long."""
+    bound = f"{command} printed more than {MAX_OUTPUT >> 20} MB"
+    if on_stderr:
+        return (f"{bound} on stderr (its messages; the inventory is read from stdout): quiet its logging or "
+                "send it to a file, or export the script's output to a YAML file")
+    return f"{bound} on stdout: a dynamic inventory prints {what}; fix the script or export its output to a YAML file"
 
 
 def _not_text_at(value: Any, keypath: KeyPath) -> tuple[KeyPath, str] | None:
@@ -241,8 +250,9 @@ def _too_deep(data: Any) -> bool:
 def wait(proc: subprocess.Popen, *outputs: int, timeout: float | None = None, limit: int | None = None) -> str:
     """Wait for a script started in its own session: "" when it exited, "time" or "size" when it
     was stopped (with everything it started) for running past `timeout` (TIMEOUT) or printing more
-    than `limit` (MAX_OUTPUT) bytes. The output goes to files, not pipes, so its size is known
-    without reading it."""
+    than `limit` (MAX_OUTPUT) bytes into one of `outputs` (each bounded alone, so that the caller
+    can say which one ran over). The output goes to files, not pipes, so its size is known without
+    reading it."""
     deadline = time.monotonic() + (TIMEOUT if timeout is None else timeout)
     limit = MAX_OUTPUT if limit is None else limit
     while True:
@@ -251,7 +261,7 @@ def wait(proc: subprocess.Popen, *outputs: int, timeout: float | None = None, li
             stopped = ""
         except subprocess.TimeoutExpired:
             stopped = "time" if time.monotonic() > deadline else ""
-        if sum(os.fstat(fd).st_size for fd in outputs) > limit:
+        if any(os.fstat(fd).st_size > limit for fd in outputs):
             stopped = "size"
         if stopped or proc.returncode is not None:
             break
