@@ -19,6 +19,7 @@ Severities: error (refused by validate and deploy), warning, info.
 from __future__ import annotations
 
 import functools
+import os
 import posixpath
 import re
 import xml.etree.ElementTree as ET
@@ -78,6 +79,7 @@ class Target:
     compose: Mapping[str, Any] | None = None                        # interpolated; None: unparsable
     raw_compose: Mapping[str, Any] | None = None                    # before interpolation
     compose_error: str = ""
+    compose_error_line: int | None = None   # of the rendered compose.yml, where compose_error is
     env_problems: tuple[str, ...] = ()   # "line N: why" of .env lines Compose v1 reads otherwise, or unseen
 
     @property
@@ -137,15 +139,18 @@ def run_checks(spec: FleetSpec, hosts: Sequence[Host],
     without it.
     """
     ctx = make_context(spec, hosts, all_hosts, releases if on_targets is None else {})
-    found: dict[Problem, dict[str, None]] = defaultdict(dict)   # a finding -> the robots, in order (a set
-    for r in (RULES.values() if rules is None else rules):       # with order: 5,000 robots share findings)
+    found: dict[Problem, dict[str, int | None]] = defaultdict(dict)   # a finding -> its robots, in order (a
+    for r in (RULES.values() if rules is None else rules):              # set with order), each with its line
         ran = on_targets.get(r.id, ()) if on_targets is not None and r.scope in TARGET_SCOPES else _run_rule(r, ctx)
         for problem, robot in ran:
+            line = None
+            if RENDERED_MARK in problem.message:      # only a rendered file's error: none on a valid fleet
+                problem, line = _lift_line(problem)
             if robot:
-                found[problem][robot] = None
+                found[problem][robot] = line
             else:
                 found[problem]
-    merged = [_with_robots(p, list(robots)) for p, robots in found.items()]
+    merged = [_with_robots(p, robots) for p, robots in found.items()]
     return sorted(merged, key=sort_key)
 
 
@@ -225,11 +230,46 @@ def _stamp(p: Problem, r: Rule) -> Problem:
     return Problem(p.file, p.line, p.key, p.message, r.severity, r.id)
 
 
-def _with_robots(p: Problem, robots: list[str]) -> Problem:
+def rendered_line(line: int | None, name: str) -> str:
+    """A line of the file `name` a template renders, in a finding's message: the line differs by
+    robot where the values above it do, so run_checks groups the robots without it and says it
+    only when they all share it (_with_robots)."""
+    return f"{{rendered line {line or 0} of {name}}}"
+
+
+RENDERED_MARK = "{rendered line "
+_RENDERED_LINE = re.compile(r"\{rendered line (\d+) of ([^{}]*)\}")
+
+
+def _lift_line(p: Problem) -> tuple[Problem, int | None]:
+    """The problem with its rendered line taken out of the message (the grouping key), and the line."""
+    found = _RENDERED_LINE.search(p.message)
+    if found is None:
+        return p, None
+    message = p.message[:found.start()] + rendered_line(None, found[2]) + p.message[found.end():]
+    return Problem(p.file, p.line, p.key, message, p.severity, p.rule), int(found[1]) or None
+
+
+def _put_line(message: str, lines: Iterable[int | None]) -> str:
+    shared = set(lines)
+
+    def said(found: re.Match) -> str:
+        of = f" of the {found[2]} it renders" if found[2] else ""    # no name: the message says the file
+        if len(shared) > 1:
+            return f"a line{of} (which line differs by robot)"
+        line = next(iter(shared), None)
+        return f"line {line}{of}" if line else f"the {found[2]} it renders"
+    return _RENDERED_LINE.sub(said, message)
+
+
+def _with_robots(p: Problem, robots: Mapping[str, int | None]) -> Problem:
+    if RENDERED_MARK in p.message:
+        p = Problem(p.file, p.line, p.key, _put_line(p.message, robots.values()), p.severity, p.rule)
     if ROBOTS not in p.message:
         return p
     # quoted: a robot name is the inventory's text, and one with a newline must not split the message
-    shown = ", ".join(map(repr, robots[:5])) + (f" (+{len(robots) - 5} more)" if len(robots) > 5 else "")
+    names = list(robots)
+    shown = ", ".join(map(repr, names[:5])) + (f" (+{len(names) - 5} more)" if len(names) > 5 else "")
     return Problem(p.file, p.line, p.key, p.message.replace(ROBOTS, shown), p.severity, p.rule)
 
 
@@ -259,25 +299,81 @@ def parse_release(host: Host, release: RenderedRelease) -> Target:
     env, problems = read_env(names[".env"].content) if ".env" in names else ({}, [])
     env_problems = tuple(problems)
     if "compose.yml" not in names:
-        return Target(host, release, env, None, None, "no compose.yml was rendered", env_problems)
+        return Target(host, release, env, None, None, "no compose.yml was rendered", env_problems=env_problems)
     if release.compose_data is not None:   # the built-in template's output, as data: no parse
         raw, resolved = release.compose_data
-        return Target(host, release, env, resolved, raw, "", env_problems)
+        return Target(host, release, env, resolved, raw, "", env_problems=env_problems)
     try:
         # load(), not load_data(): a user template can render a key twice, which Compose v2 refuses
         raw = yamlsrc.load("compose.yml", text=names["compose.yml"].content).data
     except InputError as exc:
-        return Target(host, release, env, None, None, _yaml_error(exc.problems[0]), env_problems)
+        return Target(host, release, env, None, None, _yaml_error(exc.problems[0]), exc.problems[0].line,
+                      env_problems=env_problems)
     if not isinstance(raw, dict):
-        return Target(host, release, env, None, None, "it is not a mapping", env_problems)
-    return Target(host, release, env, interpolate(raw, env), raw, "", env_problems)
+        why = "it is empty" if raw is None else "it is not a mapping"
+        return Target(host, release, env, None, None, why, env_problems=env_problems)
+    return Target(host, release, env, interpolate(raw, env), raw, "", env_problems=env_problems)
 
 
 def _yaml_error(p: Problem) -> str:
     if "another document" in p.message:     # PyYAML's "expected a single document ...", cut short by yamlsrc
-        return (f"it renders more than one YAML document (a `---` at line {p.line}): Compose v2 merges them, and "
-                "`check` reads one; remove the `---`")
-    return f"line {p.line}: {p.message}" if p.line else p.message
+        return ("it holds more than one YAML document (a `---`): Compose v2 merges them, and `check` reads one; "
+                "remove the `---`")
+    return p.message
+
+
+_NEWLINE = re.compile(r"\r\n|\r|\n")     # Jinja's, which numbers a template's lines
+_YAML_BREAK = re.compile(r"\r\n|[\r\n\x85\u2028\u2029]")     # PyYAML's, which numbers a rendered file's
+_XML_BREAK = _NEWLINE     # expat's
+_LF = re.compile(r"\n")    # compose_env.read_env's
+
+
+def _template_lines(path: str) -> tuple[str, ...]:
+    try:
+        stat = os.stat(path)
+    except OSError:
+        return ()
+    return _template_lines_of(path, stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=16)
+def _template_lines_of(path: str, mtime: int, size: int) -> tuple[str, ...]:
+    """A user template's lines (the renderer read it already: a regular file within its bound), or
+    none; read once per version of the file, for the robots whose release it fails."""
+    from rosdeploy.files import MAX_TEMPLATE_BYTES
+    try:
+        return tuple(_NEWLINE.split(yamlsrc.read_bytes(path, MAX_TEMPLATE_BYTES, "a template").decode("utf-8")))
+    except (InputError, UnicodeDecodeError):
+        return ()
+
+
+def template_line(template: str, rendered: str, line: int | None, breaks: re.Pattern = _YAML_BREAK) -> int | None:
+    """The line of the template that wrote line `line` of `rendered`, where that is sure: the
+    rendered line's text stands literally in the template, on one line and nowhere else. A line a
+    value or a partial wrote has no such twin: None, rather than a guess."""
+    lines = breaks.split(rendered)
+    text = lines[line - 1].strip() if line and line <= len(lines) else ""
+    if len(text) < 3:     # `]`, `- `: on many lines, proof of nothing
+        return None
+    sources = _template_lines(template)
+    found = [i for i, source in enumerate(sources, 1) if text in source]
+    return found[0] if len(found) == 1 and sources[found[0] - 1].count(text) == 1 else None
+
+
+def _content(t: Target, name: str) -> str:
+    return next((f.content for f in t.release.files if f.name == name), "")
+
+
+def _rendered_at(spec: FleetSpec, t: Target, name: str, template: str, line: int | None,
+                 breaks: re.Pattern = _YAML_BREAK) -> tuple[str, str]:
+    """(which template, where in it) for a finding on the file `name` a template rendered: the
+    user's template named, with the line that wrote `line` when it is sure (template_line)."""
+    if not _overridden(spec.templates, template):
+        return f"the {name} rendered for {ROBOTS}", rendered_line(line, name) if line else ""
+    source = str(Path(str(spec.templates)) / template)
+    at = template_line(source, _content(t, name), line, breaks)
+    where = (rendered_line(line, name) if line else "") + (f", written by line {at} of the template" if at else "")
+    return f"the {name} your template {source} renders for {ROBOTS}", where
 
 
 def env_of(svc: Mapping[str, Any]) -> dict[str, str]:
@@ -519,18 +615,27 @@ def _host_changes_no_root(ctx: Context, host: Host) -> Iterator[Problem]:
 def _compose_invalid(ctx: Context, t: Target) -> Iterator[Problem]:
     where = ("templates",) if ctx.spec.templates else ()
     for why in t.env_problems:
-        yield problem_at(ctx.spec, where, f"the .env rendered for {ROBOTS}: {why} (fix the .env template)")
+        found = re.match(r"line (\d+): ", why)     # compose_env.read_env's
+        what, _ = _rendered_at(ctx.spec, t, ".env", "env.j2", None)
+        wrote = template_line(str(Path(str(ctx.spec.templates)) / "env.j2"), _content(t, ".env"), int(found[1]),
+                              _LF) if found and _overridden(ctx.spec.templates, "env.j2") else None
+        why = f"{rendered_line(int(found[1]), '')}: {why[found.end():]}" if found else why
+        yield problem_at(ctx.spec, where, f"{what}: {why} ("
+                                          f"{f'written by line {wrote} of the template; ' if wrote else ''}"
+                                          "fix the .env template)")
     if t.compose_error or not isinstance((t.compose or {}).get("services"), dict):
         why = t.compose_error or "it has no `services:` mapping"
+        what, at = _rendered_at(ctx.spec, t, "compose.yml", "compose.yml.j2", t.compose_error_line)
         yield problem_at(ctx.spec, where, (
-            f"the compose.yml rendered for {ROBOTS} is not a valid compose file ({why}): fix the compose template"))
+            f"{what} is not a valid compose file ({why}{f'; at {at}' if at else ''}): fix the compose template"))
         return
     # A compose template's output: the built-in one quotes every string (render.yaml_str, _Dumper).
     numbers = _plain_numbers(t.raw_compose, t.release) if t.release.compose_data is None else []
     if numbers:
         (line, text), more = numbers[0], f" (and {len(numbers) - 1} more)" if len(numbers) > 1 else ""
+        what, place = _rendered_at(ctx.spec, t, "compose.yml", "compose.yml.j2", line)
         yield problem_at(ctx.spec, where, (
-            f"the compose.yml rendered for {ROBOTS} has {shown(text)} unquoted at line {line}{more}: Compose v1 "
+            f"{what} has {shown(text)} unquoted at {place or 'a line'}{more}: Compose v1 "
             "(YAML 1.1) reads it as text, Compose v2 (YAML 1.2) as a number, and refuses it where text is "
             "required (`hostname`, `extra_hosts` keys); quote it in the compose template"))
     # The fleet's `compose:` refuses these at load (fleet.MANAGED_COMPOSE, _check_compose_conflicts);
@@ -655,7 +760,7 @@ def _dds_peers(ctx: Context, t: Target) -> Iterator[Problem]:
     xml = next((f.content for f in t.release.files if f.name == name), None)
     if all(svc.get("network_mode") == "host" for svc in t.services.values() if isinstance(svc, dict)):
         # no peers needed, but the robot's DDS loads the profile all the same: a malformed one breaks it
-        yield from _dds_unparsable(ctx, name, xml)
+        yield from _dds_unparsable(ctx, t, name, xml)
         return
     if xml is None:
         yield problem_at(ctx.spec, where, f"no {name} was rendered for {ROBOTS}, whose services are not on host "
@@ -664,8 +769,7 @@ def _dds_peers(ctx: Context, t: Target) -> Iterator[Problem]:
     try:
         peers = dds_peers(xml)
     except ET.ParseError as exc:
-        yield problem_at(ctx.spec, where,
-                         f"the {name} rendered for {ROBOTS} is not valid XML ({exc}): fix its template")
+        yield _xml_problem(ctx, t, name, exc, where)
         return
     if not peers:
         yield problem_at(ctx.spec, where, (
@@ -673,13 +777,19 @@ def _dds_peers(ctx: Context, t: Target) -> Iterator[Problem]:
             "unicast peers: nodes would not discover each other; render the peers or use network_mode: host"))
 
 
-def _dds_unparsable(ctx: Context, name: str, xml: str | None) -> Iterator[Problem]:
+def _dds_unparsable(ctx: Context, t: Target, name: str, xml: str | None) -> Iterator[Problem]:
     try:
         if xml is not None:
             dds_peers(xml)
     except ET.ParseError as exc:
-        yield problem_at(ctx.spec, ("templates",) if ctx.spec.templates else ("ros",),
-                         f"the {name} rendered for {ROBOTS} is not valid XML ({exc}): fix its template")
+        yield _xml_problem(ctx, t, name, exc, ("templates",) if ctx.spec.templates else ("ros",))
+
+
+def _xml_problem(ctx: Context, t: Target, name: str, exc: ET.ParseError, where: tuple) -> Problem:
+    line = exc.position[0] if getattr(exc, "position", None) else None
+    why = re.sub(r": line \d+, column \d+$", "", str(exc))     # said below, as a line of the rendered file
+    what, at = _rendered_at(ctx.spec, t, name, f"{name}.j2", line, breaks=_XML_BREAK)
+    return problem_at(ctx.spec, where, f"{what} is not valid XML ({why}{f'; at {at}' if at else ''}): fix its template")
 
 
 @rule("domain-id-not-injected", "error", "release", "ROS_DOMAIN_ID comes from the robot's .env, never hard-coded.",

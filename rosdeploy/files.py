@@ -15,6 +15,7 @@ symbolic link pointing out).
 from __future__ import annotations
 
 import re
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -87,6 +88,43 @@ _Dumper.add_representer(str, represent_text)
 _Dumper.add_multi_representer(str, represent_text)
 
 
+class _Included(jinja2.TemplateError):
+    """An include, import or extends in a `files:` template (_NoOtherTemplates)."""
+
+    def __init__(self, name: str) -> None:
+        super().__init__(f"template {name}")
+        self.name = name
+
+
+class _NoOtherTemplates(jinja2.BaseLoader):
+    """A `files:` template's loader, which loads nothing. The renderer's would look in the
+    `templates:` folder and among rosdeploy's own templates, not beside the file (its path is
+    relative to the fleet file): an include there would take a partial of another set, or
+    rosdeploy's compose.yml.j2, unseen. README ("Per-robot files"): a `files:` template is whole."""
+
+    def get_source(self, environment: jinja2.Environment, template: str) -> tuple[str, str, Any]:
+        raise _Included(template)
+
+
+_TAG = re.compile(r"\{%[-+]?\s*(?:include|import|from|extends)\b.*?%\}", re.S)
+
+
+def _tag_line(template: jinja2.Template, text: str, exc: BaseException) -> tuple[int | None, str]:
+    """(line, the tag's text) of the include, import or extends that raised `exc`: the line from
+    the compiled template's frame (render_value runs it without Jinja's traceback rewriting), else
+    that of the source's only such tag; None when it cannot be told."""
+    line = None
+    for frame, lineno in traceback.walk_tb(exc.__traceback__):
+        if frame.f_code.co_filename == "<template>":
+            line = template.get_corresponding_lineno(lineno)
+    tags = [(text.count("\n", 0, m.start()) + 1, m.group()) for m in _TAG.finditer(text)]
+    if line is None and len(tags) == 1:
+        line = tags[0][0]
+    on_line = [tag for at, tag in tags if at == line]
+    tag = on_line[0] if len(on_line) == 1 and len(on_line[0]) <= 120 and "\n" not in on_line[0] else ""
+    return line, tag
+
+
 @dataclass(frozen=True)
 class RobotFiles:
     """One robot's files: what goes into the release, and each service's mounts."""
@@ -105,6 +143,7 @@ class FileRenderer:
         used = {name for svc in spec.services for name in svc.files}
         self.entries = tuple(f for f in spec.files if f.name in used)
         self.paths = {f.name: value_template(env, f.source) for f in self.entries if f.kind != "var"}
+        self.file_env = env.overlay(loader=_NoOtherTemplates())    # the same sandbox and filters
         self._cache: dict[Path, str] = {}
         self._templates: dict[Path, jinja2.Template] = {}
 
@@ -174,8 +213,14 @@ class FileRenderer:
                                                        "a template: use `copy:` for a file that needs no templating"))
             return None
         try:
-            template = self._templates.get(path) or self._templates.setdefault(path, self.env.from_string(text))
+            template = self._templates.get(path) or self._templates.setdefault(path, self.file_env.from_string(text))
             return render_value(template, *layers)
+        except _Included as exc:
+            at, tag = _tag_line(template, text, exc)
+            problems.append(Problem(str(path), at, ".".join(("files", entry.name, entry.kind)), (
+                f"robot {shown(host.name)}: {tag + ': ' if tag else ''}a files: template cannot include, import or "
+                f"extend other templates (here {shown(exc.name)}): put the text in the file itself")))
+            return None
         except jinja2.TemplateError as exc:
             lineno = getattr(exc, "lineno", None)
             line = f" line {lineno}" if lineno else ""

@@ -379,6 +379,11 @@ def _output_name_problem(name: str) -> str | None:
     if name in ("", ".", ".."):
         return (f"renders to {shown(name)}, which is no file name (it would be the release folder or its "
                 "parent): name the template NAME.j2, e.g. notes.txt.j2")
+    odd = next((c for c in name if "\udc80" <= c <= "\udcff"), None)    # os.listdir's stand-in for a bad byte
+    if odd is not None:
+        return (f"renders to {shown(name)}, whose name is not UTF-8 (byte 0x{ord(odd) - 0xdc00:02x}): a release file's "
+                "name is written into its manifest and read by the robot's tools as UTF-8; rename the template, "
+                "e.g. notes.txt.j2")
     if name.startswith("-") or any(c.isspace() or not c.isprintable() for c in name):
         return (f"renders to {shown(name)}: a file name with a blank, a control character or a leading `-` "
                 "is split or read as an option by the robot's shell scripts and compose; rename the template, "
