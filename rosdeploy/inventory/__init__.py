@@ -3,10 +3,11 @@
 A team's existing inventory must work unchanged, so this follows Ansible's own
 rules rather than inventing better ones:
 
-* formats: YAML (`all:`/`children:`/`hosts:`/`vars:`; `.yml`, `.yaml`, `.json`)
-  and INI (`[g]`, `[g:vars]`, `[g:children]`, inline `k=v` parsed with
-  `ast.literal_eval` like Ansible, `host[01:03]` ranges, `host:port`); any other
-  name without an extension is INI, as in Ansible.
+* formats: YAML (`all:`/`children:`/`hosts:`/`vars:`), INI (`[g]`, `[g:vars]`,
+  `[g:children]`, inline `k=v` parsed with `ast.literal_eval` like Ansible,
+  `host[01:03]` ranges, `host:port`) and TOML (Ansible's toml plugin). As Ansible
+  tries its plugins: `.toml` is TOML; a file with no extension, or `.yml`, `.yaml`,
+  `.json`, is YAML when it holds a mapping, else INI; any other name is INI.
 * `-i DIR` reads every inventory file below DIR (hidden files, `group_vars/`,
   `host_vars/` and docs/backups skipped), in sorted order.
 * `group_vars/` and `host_vars/` beside the inventory: `NAME`, `NAME.yml`,

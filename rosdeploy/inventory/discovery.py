@@ -2,7 +2,10 @@
 from __future__ import annotations
 
 import errno
+import json
 import os
+import re
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -12,6 +15,7 @@ from rosdeploy.inventory.draft import Draft, Origin
 from rosdeploy.inventory.ini_parser import check_undeclared, parse_ini
 from rosdeploy.inventory.known import MAYBE_NOT_INVENTORY, SCRIPT_EXTS, SKIPPED_EXTS, YAML_EXTS
 from rosdeploy.inventory.script import is_script, parse_script
+from rosdeploy.inventory.toml_source import parse_toml
 from rosdeploy.inventory.yaml_parser import parse_yaml
 from rosdeploy.vault import Vault, WrongPassword, is_encrypted
 from rosdeploy.yamlsrc import Doc, Encrypted, KeyPath
@@ -165,9 +169,11 @@ def parse_sources(root: Path, reader: Reader, draft: Draft) -> Path:
         read = reader.text(path, draft.problems)
         if read is None:
             continue
-        if path.suffix in YAML_EXTS:
-            if (origin := reader.load(path, read[0], read[1], draft.problems)) is not None:
-                parse_yaml(origin, draft)
+        ext = os.path.splitext(path.name)[1]   # Ansible's test: `hosts.` has the extension "."
+        if ext == ".toml":
+            parse_toml(path, read[0], read[1], draft)
+        elif not ext or ext in YAML_EXTS:
+            _parse_yaml_or_ini(path, read, reader, draft)
         elif path.name.endswith(MAYBE_NOT_INVENTORY) and is_dir(root):
             _parse_ini_or_skip(path, read, draft)
         else:
@@ -188,6 +194,72 @@ def is_password_file(path: Path, reader: Reader) -> bool:
     """Whether `path` is a vault password file: such a file is never read as inventory or vars."""
     found = _same_file(path)
     return found is not None and found in {_same_file(p) for p in reader.vault.password_files}
+
+
+def _parse_yaml_or_ini(path: Path, read: tuple[str, bool], reader: Reader, draft: Draft) -> None:
+    """A `.yml`/`.yaml`/`.json` file, or one with no extension. Ansible tries its yaml plugin on
+    these, then its ini plugin: a YAML document that is a mapping is a YAML inventory, anything
+    else (INI text, which seldom parses as YAML, or a bare list of host names) is read as INI."""
+    tried: list[Problem] = []
+    warned = len(draft.warnings)
+    origin = reader.load(path, read[0], read[1], tried)
+    if origin is not None and (origin.doc.data is None or isinstance(origin.doc.data, dict)):
+        parse_yaml(origin, draft)
+        return
+    del draft.warnings[warned:]   # duplicate keys or octal numbers of a reading that was dropped
+    if origin is not None:
+        tried.append(origin.doc.problem((), f"{_kind(path)} that is not a mapping: an inventory is a mapping of "
+                                            "group names, starting with `all:`"))
+    if _is_json(path):
+        tried = [_json_problem(path, read[0], tried[0])]
+    before = len(draft.problems)
+    parse_ini(path, read[0], read[1], draft)
+    if len(draft.problems) == before:
+        if os.path.splitext(path.name)[1]:   # named YAML, read as INI: say so, the next reader may not
+            draft.warnings.append(Problem(str(path), None, "", f"not {_kind(path)} but INI: read as INI, as "
+                                          f"Ansible does; name it {path.stem}.ini", severity="warning"))
+        return
+    draft.problems[before:] = _both_failed(path, draft.problems[before:], tried[0], read[0])
+
+
+def _kind(path: Path) -> str:
+    return "JSON" if _is_json(path) else "YAML"
+
+
+def _is_json(path: Path) -> bool:
+    return os.path.splitext(path.name)[1] == ".json"
+
+
+def _json_problem(path: Path, text: str, problem: Problem) -> Problem:
+    """A `.json` file's syntax error in JSON's words: a YAML parser's ("did not find expected
+    <document start>") under a JSON label misleads. YAML's stays when JSON reads the file."""
+    try:
+        json.loads(text)
+    except json.JSONDecodeError as exc:
+        return Problem(problem.file, exc.lineno, "", f"invalid JSON: {exc.msg} (column {exc.colno})")
+    except (ValueError, RecursionError):   # a 4,300-digit number, deep nesting: YAML said it already
+        pass
+    return problem
+
+
+def _both_failed(path: Path, ini: list[Problem], tried: Problem, text: str) -> list[Problem]:
+    """What each reader said, briefly. With an extension, the YAML/JSON reader's (the extension says
+    what was meant) and INI's first. With none, INI's all (an INI file with a typo is the common
+    case), then YAML's unless a line starts with `[`: no YAML mapping has one, INI sections do."""
+    if os.path.splitext(path.name)[1]:
+        others = len(ini) - 1
+        more = f" (and {others} more INI problem{'s' * (others > 1)})" if others else ""
+        where = f"line {ini[0].line}: " if ini[0].line else ""
+        return [replace(tried, message=f"{tried.message}; not INI either, which Ansible tries next "
+                                       f"({where}{ini[0].message}{more})")]
+    if _INI_SECTION.search(text):
+        return ini
+    return [*ini, replace(tried, message=f"not YAML either ({tried.message}): a file with no extension is "
+                                         "read as YAML when it holds a mapping, else as INI, as Ansible does; "
+                                         f"name it {path.name}.yml or {path.name}.ini to have it read one way")]
+
+
+_INI_SECTION = re.compile(r"^\[", re.MULTILINE)
 
 
 def _parse_ini_or_skip(path: Path, read: tuple[str, bool], draft: Draft) -> None:
@@ -268,4 +340,4 @@ def _sort_entry(entry: Path, walk: Callable[[Path], None], found: list[Path], pr
                                 "executable: `chmod +x` it to have it run (as Ansible does), or move it "
                                 "out of the inventory directory"))
     else:
-        found.append(entry)  # like Ansible: YAML by extension, anything else is INI
+        found.append(entry)  # which reader takes it is parse_sources' choice, by extension as Ansible

@@ -43,7 +43,7 @@ SKIPPED_EXTS = (".md", ".txt", ".rst", ".orig", ".bak", ".swp", ".pyc", ".pyo", 
 # Read as INI, as Ansible does, but skipped with a warning when that fails (Ansible's "Unable to parse").
 MAYBE_NOT_INVENTORY = (".example", ".sample", ".j2")
 # Dynamic inventories that are not executable: refused, not misread as INI (executable ones are run).
-SCRIPT_EXTS = (".py", ".sh", ".toml", ".js", ".rb", ".pl", ".ps1", ".exe")
+SCRIPT_EXTS = (".py", ".sh", ".js", ".rb", ".pl", ".ps1", ".exe")
 TRUE = ("true", "yes", "on", "1", "y", "t")
 FALSE = ("false", "no", "off", "0", "n", "f")
 
