@@ -18,6 +18,7 @@ import errno
 import functools
 import glob
 import io
+import ipaddress
 import math
 import os
 import posixpath
@@ -575,10 +576,38 @@ def _count_problem(value: str) -> str | None:
 
 def _jump_problem(value: str) -> str | None:
     try:
-        proxy_jump_hops(value)
+        hops = proxy_jump_hops(value)
     except ValueError as exc:
         return str(exc)
+    return next((f"jump host {why}" for why in (host_name_problem(host) for _, host, _ in hops) if why), None)
+
+
+def host_name_problem(host: str) -> str | None:
+    """Why a literal HostName or jump host can reach no resolver, or None. The idna codec refuses an
+    empty label, one over 63 characters, or `\x85` with a UnicodeError (not an OSError): it passed
+    validate and stopped `plan` with an internal error. A `%h`-style token is known at connect time only."""
+    host = host.strip()
+    if "%" in host and not _ip_address(host):
+        return None
+    if not host.isprintable():
+        bad = ", ".join(sorted({repr(c) for c in host if not c.isprintable()}))
+        return f"{shown(host, 40)} holds {bad}: give a host name or IP address"
+    if _ip_address(host):
+        return None
+    try:
+        host.encode("idna")
+    except UnicodeError:
+        return (f"{shown(host, 40)} is not a valid host name (a dot-separated label is empty or longer than 63 "
+                "characters): give a host name or IP address")
     return None
+
+
+def _ip_address(text: str) -> bool:
+    try:
+        ipaddress.ip_address(text)
+        return True
+    except ValueError:
+        return False
 
 
 def proxy_jump_hops(value: str) -> list[tuple[str | None, str, int | None]]:
@@ -625,7 +654,7 @@ def _match_problem(value: str) -> str | None:
 
 _SETTING_CHECKS: dict[str, Callable[[str], str | None]] = {
     "port": _port_problem, "canonicalizemaxdots": _count_problem, "proxyjump": _jump_problem,
-    "match": _match_problem,
+    "match": _match_problem, "hostname": host_name_problem,
 }
 
 
@@ -908,6 +937,11 @@ def _mount(r: Reader, kp: KeyPath, value: Any) -> Any:
         raise Invalid(f"{shown(value)} is not a bind mount: use /path/on/robot:/path/in/container, optionally "
                       f"followed by :ro or :rw; both paths absolute, letters, digits and ._@+- only")
     source, target = (normal_path(p) for p in parts)   # `/dev/./shm` is /dev/shm, to Docker and to checks
+    # the robot creates a missing source, and runc the target: ENAMETOOLONG, after the images were pulled
+    for side, path, example in (("robot", source, "/opt/maps"), ("container", target, "/maps")):
+        too_long = path_too_long(path, example)
+        if too_long:
+            raise Invalid(f"the {side} path is {too_long}")
     taken = managed_mount(target)
     if taken:
         raise Invalid(f"{target} is where rosdeploy mounts {taken} itself: choose another container path")
@@ -1066,13 +1100,30 @@ def _deploy_root(r: Reader, kp: KeyPath, value: Any) -> Any:
     if ".." in value.split("/"):
         raise Invalid(f"{shown(value)} contains `..`: releases would land outside the folder it names; "
                       "write the folder itself, e.g. ~/rosdeploy or /opt/rosdeploy")
-    if value.startswith("/") and normal_path(value) == "/":     # `/.` and `/./` are the root as well
-        raise Invalid(f"{shown(value)} is the robot's root folder: releases need a folder of their own, "
-                      "e.g. ~/rosdeploy or /opt/rosdeploy")
-    too_long = remote_root_too_long(value)
-    if too_long:
-        raise Invalid(too_long)
+    problem = deploy_root_problem(value)
+    if problem:
+        raise Invalid(problem)
     return value
+
+
+KERNEL_FOLDERS = ("/proc", "/sys", "/dev")
+
+
+def deploy_root_problem(path: str) -> str | None:
+    """Why a deploy root that passed the remote-path pattern is no folder for releases, or None: the
+    robot's root, a folder of the kernel's, or a path too long for Linux. Shared by deploy_root and
+    the per-robot rosdeploy_deploy_root."""
+    folder = normal_path(path) if path.startswith("/") else ""
+    if folder == "/":     # `/.` and `/./` are the root as well
+        return (f"{shown(path)} is the robot's root folder: releases need a folder of their own, "
+                "e.g. ~/rosdeploy or /opt/rosdeploy")
+    kernel = next((k for k in KERNEL_FOLDERS if folder == k or folder.startswith(k + "/")), None)
+    if kernel:
+        # procfs and sysfs take no new folder, and /dev is devtmpfs (its /dev/shm is emptied at boot):
+        # every apply failed at its first mkdir, after the images were pulled
+        return (f"{shown(path)} is in {kernel}, the kernel's own file system: the robot cannot keep releases "
+                "there; use a folder of its own, e.g. ~/rosdeploy or /opt/rosdeploy")
+    return remote_root_too_long(path)
 
 
 def remote_root_too_long(path: str) -> str | None:
@@ -1126,14 +1177,34 @@ def _inventory_only(name: str) -> str | None:
         return (f"unknown rosdeploy variable {shown(name)}: "
                 + (f"did you mean `{hint[0]}`?" if hint else f"known: {', '.join(taken)}")
                 + " (the rosdeploy_ prefix is rosdeploy's own)")
+    variant = _case_variant(name, taken)
+    if variant:
+        return variant
     if name not in PREFIXED_VARS and name not in OWN_VARS and not name.startswith("ansible_"):
         return None
     where = "the inventory (group_vars/all.yml for every robot, or the robot's host vars)"
     if name in _FLEET_KEY_FOR:
         where = f"the fleet file's top-level key `{_FLEET_KEY_FOR[name]}:` (every robot), or " + where
-    whose = "Ansible's per-robot variable, which rosdeploy takes" if name.startswith("ansible_") else \
-        "rosdeploy's per-robot variable, which it takes"
+    whose = "rosdeploy's per-robot variable, which it takes"
+    if name.startswith("ansible_"):    # Ansible's own names are lower case: `ansible_Foo` is only in its namespace
+        whose = ("Ansible's per-robot variable, which rosdeploy takes" if name == name.lower()
+                 else "in Ansible's `ansible_` namespace, whose variables rosdeploy takes")
     return f"{name} is {whose} from the inventory only, so here it would be ignored: set it in {where}"
+
+
+def _case_variant(name: str, taken: Sequence[str]) -> str | None:
+    """Why `name`, which differs from a rosdeploy_ or Ansible variable in case only (`ROSDEPLOY_GPU`,
+    `ansible_Host`), is neither, or None. Variable names are case-sensitive, in Ansible as here: it
+    would be a template variable of its own, ignored by rosdeploy without a word."""
+    from rosdeploy.inventory.hostvars import CONNECTION, PREFIX
+    from rosdeploy.inventory.known import ANSIBLE_VARS
+    lower = name.lower()
+    ansible = {*ANSIBLE_VARS, *(var for names in CONNECTION.values() for var in names)}
+    if name == lower or lower not in ({*taken} if lower.startswith(PREFIX) else ansible):
+        return None     # another spelling is the user's own template variable
+    then = "" if lower in FLEET_READ_VARS else f" {_inventory_only(lower)}"
+    return (f"{shown(name)} is not a variable rosdeploy or Ansible reads (names are case-sensitive): "
+            f"did you mean `{lower}`?{then}")
 
 
 def _compose_passthrough(r: Reader, kp: KeyPath, value: Any) -> Any:
@@ -1227,6 +1298,10 @@ def _compose_tmpfs(r: Reader, kp: KeyPath, tmpfs: Any) -> None:
     one in /proc or /sys stops the container from being created, as a bind mount there does."""
     for where, target in _tmpfs_targets(tmpfs):
         if not target.startswith("/"):
+            continue
+        if normal_path(target) == "/":     # moby's ValidateTmpfsMountDestination: "destination can't be '/'"
+            r.error(kp + where, f"{shown(target)} is the container's root: Docker refuses a tmpfs there (the "
+                                "container would not be created); give a folder, e.g. /tmp")
             continue
         taken = managed_mount(target)
         if taken:
@@ -1437,7 +1512,7 @@ def _check_services(r: Reader, top: dict) -> None:
     if not isinstance(services, dict):
         return
     names = r.names(("services",), services)   # a service whose value was refused is still declared
-    if not names and "services" in r.doc.data:
+    if not names and "services" in r.doc.data and not r.raw(("services",)):   # a bad name is reported as such
         r.error(("services",), "declares no service: add at least one, e.g. `driver: {image: acme/amr-driver}`")
     for name, svc in services.items():
         _check_service(r, ("services", name), svc, names, top.get("registry"))
@@ -1570,6 +1645,9 @@ def _check_compose_conflicts(r: Reader, kp: KeyPath, svc: dict, names: list[str]
 _ULIMITS = frozenset({"core", "cpu", "data", "fsize", "locks", "memlock", "msgqueue", "nice", "nofile", "nproc",
                       "rss", "rtprio", "rttime", "sigpending", "stack"})
 _SHARED_NS = re.compile(r"host|container:.+|service:.+")
+_SHARED_NAMES = "host, container:NAME, service:NAME"
+# moby's IpcMode.Valid: "" is the daemon's default (private or shareable)
+_IPC_MODES = re.compile(r"|none|private|shareable|host|container:.+|service:.+")
 _SIGNALS = frozenset("ABRT ALRM BUS CHLD CLD CONT FPE HUP ILL INT IO IOT KILL PIPE POLL PROF PWR QUIT SEGV STKFLT "
                      "STOP SYS TERM TRAP TSTP TTIN TTOU UNUSED URG USR1 USR2 VTALRM WINCH XCPU XFSZ".split())
 _RT_SIGNAL = re.compile(r"RTMIN(\+(?:[1-9]|1[0-5]))?|RTMAX(-(?:[1-9]|1[0-4]))?")
@@ -1602,11 +1680,16 @@ def _check_compose_values(r: Reader, where: KeyPath, extra: dict) -> None:
     isolation = extra.get("isolation")
     if isinstance(isolation, str) and isolation.lower() not in ("", "default"):
         r.error(where + ("isolation",), "only `default` exists on Linux (hyperv and process are Windows'): remove it")
-    for key in ("pid", "userns_mode"):
+    for key, modes, names in (("pid", _SHARED_NS, _SHARED_NAMES), ("userns_mode", _SHARED_NS, _SHARED_NAMES),
+                              ("ipc", _IPC_MODES, "none, private, shareable, " + _SHARED_NAMES)):
         value = extra.get(key)
-        if isinstance(value, str) and not _SHARED_NS.fullmatch(value):
-            r.error(where + (key,), f"{shown(value)} is none of host, container:NAME, service:NAME (Docker's "
-                                    "names are lower case)")
+        if isinstance(value, str) and not modes.fullmatch(value):
+            r.error(where + (key,), f"{shown(value)} is none of {names} (Docker's names are lower case)")
+    storage = extra.get("storage_opt")
+    size = storage.get("size") if isinstance(storage, dict) else None
+    if isinstance(size, str) and (size != size.strip() or not _size_ok(size)):
+        # the storage driver reads it with go-units' RAMInBytes at create: "invalid size"
+        r.error(where + ("storage_opt", "size"), f"{shown(size)} is not a size in bytes, e.g. 10g (Docker refuses it)")
     stop = extra.get("stop_signal")
     if isinstance(stop, str) and not _is_signal(stop):
         r.error(where + ("stop_signal",), f"{shown(stop)} is no signal: e.g. SIGINT (what ros2 launch handles)")
@@ -1639,7 +1722,8 @@ def _check_compose_formats(r: Reader, where: KeyPath, extra: dict) -> None:
         r.error(where + ("stop_grace_period",), f"{shown(grace)} is not a duration: e.g. 10s, 1m30s")
     # cpu_rt_runtime and cpu_rt_period: a whole number, as each key of compose_number_keys (_compose_numbers)
     for i, port in enumerate(extra["ports"] if isinstance(extra.get("ports"), list) else []):
-        problem = short_port_problem(port) if isinstance(port, str) else None
+        problem = (short_port_problem(port) if isinstance(port, str)
+                   else long_port_problem(port) if isinstance(port, dict) else None)
         if any(n > 65535 for n in _port_numbers(port)):
             r.error(where + ("ports", i), f"{shown(port)}: a port number is at most 65535")
         elif problem:
@@ -1682,6 +1766,22 @@ def short_port_problem(port: str) -> str | None:
     ranges = [_range_size(p) for p in (host, container) if p]
     if len(ranges) == 2 and ranges[1] > 1 and ranges[0] != ranges[1]:
         return f"host ports {host} and container ports {container} are ranges of different lengths"
+    return None
+
+
+def long_port_problem(port: Mapping[str, Any]) -> str | None:
+    """Why Compose or Docker refuses a long-syntax `ports:` entry, or None: the short syntax's checks
+    (short_port_problem) on its `protocol`, `target` and `published` (a port or a range, 0 a free one).
+    A number over 65535 is reported by the caller, for both syntaxes."""
+    proto, target, published = port.get("protocol"), port.get("target"), port.get("published")
+    if isinstance(proto, str) and proto.lower() not in PORT_PROTOCOLS:
+        return f"{shown(proto)} is not a protocol: tcp, udp or sctp"
+    if isinstance(target, int) and not isinstance(target, bool) and target < 1:
+        return f"the container port must be from 1 to 65535, not {target}"
+    if isinstance(published, int) and not isinstance(published, bool) and published < 0:
+        return f"the host port must be from 0 to 65535, not {published}"
+    if isinstance(published, str):
+        return _port_range_problem(published, "host port")
     return None
 
 
