@@ -5,6 +5,7 @@
     ~amr-[ns]\\d       a regular expression, matched from the start of the name
     all  *            every host
     a:b  a,b          union; with a comma present, Ansible splits on commas only (`a:b,c` is `a:b` and `c`)
+    fe80::1  host:22  without a comma, a pattern that reads as one address is one term (Ansible)
     a:&b              intersection
     a:!b              exclusion
     site[0]  site[1:3]  subscripts of a group in Ansible's host order for it, end inclusive
@@ -55,7 +56,22 @@ _SUBSCRIPT = re.compile(r"^(?P<base>.+)\[(?:(?P<index>-?[0-9]+)|(?P<start>[0-9]+
 _TERM = re.compile(r"(?:[^\s:\[\]]|\[[^\]]*\])+")
 # A term as written, a stray bracket kept: `~r[:web` is the words `~r[` and `web`.
 _WORD = re.compile(r"(?:[^\s:\[\]]|\[[^\]]*\]|[\[\]])+")
-_HOST_PORT = re.compile(r"[^:\[\]\s]+:[0-9]+")
+# Ansible keeps a pattern without a comma whole when it reads as one host address (parse_address):
+# `name:22` or `[v6]:22` (the port split off, bracketed first, then plain), then a host name, IPv4
+# or IPv6 address, each maybe with `[a:b]` ranges. So `fe80::1` and `[::1]:2223` are one term each.
+_BRACKETED_PORT = re.compile(r"\[(.+)\]:[0-9]+")
+_PLAIN_PORT = re.compile(r"((?:[^:\[\]]|\[[^\]]*\])*):[0-9]+")
+# A host name's label: starts with a word character or a range, then word characters, `-` or ranges,
+# and does not end in `_` or `-` (Unicode letters are word characters there: `bücher`).
+_NAME_RANGE = r"\[(?:[a-zA-Z]:[a-zA-Z]|[0-9]+:[0-9]+)(?::[0-9]+)?\]"
+_LABEL = re.compile(rf"(?:\w|{_NAME_RANGE})(?:[\w-]|{_NAME_RANGE})*(?<![_-])")
+# An IPv6 address: hexadecimal groups (or `[hex:hex]` ranges, one group each), `:`, `.` for a
+# trailing IPv4 part.
+_V6_TEXT = re.compile(r"[0-9a-fA-F:.\[\]]+")
+_V6_RANGE = re.compile(r"\[[0-9a-fA-F]+:[0-9a-fA-F]+(?::[0-9]+)?\]")
+_V6_GROUP = re.compile(r"[0-9a-fA-F]{1,4}|r")      # `r` stands for a range
+# The only forms of an IPv6 address ending in IPv4 notation that Ansible reads as one.
+_V4_IN_V6 = ("::", "::ffff:", "0:0:0:0:0:0:", "0:0:0:0:0:ffff:")
 _LOCALHOST = ("localhost", "127.0.0.1", "::1")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 # Seconds all the matching of one pattern may take. A `~regex` is Python's `re`, as in Ansible, so
@@ -90,7 +106,7 @@ def select(pattern: str | None, hosts: Sequence[str], groups: Mapping[str, Seque
     no host; other unmatched terms go to `warnings`.
     """
     if pattern is None:
-        return tuple(hosts)
+        return _everyone(hosts, groups, where)
     _refuse_control(pattern, where)
     terms = _read_files(split(pattern), where)
     if not terms:
@@ -111,10 +127,24 @@ def select(pattern: str | None, hosts: Sequence[str], groups: Mapping[str, Seque
             raise _error(where, "localhost is not in the inventory: rosdeploy deploys over SSH to inventory "
                                 "hosts only (no implicit localhost as in Ansible); to target this machine, add "
                                 "it, e.g. `localhost: {ansible_host: 127.0.0.1}`")
-        why = "; ".join([_why_nothing(unmatched, len(missed)), *(note.message for note in names.notes[:1])])
+        why = "; ".join([_why_nothing(unmatched, len(missed), terms), *(note.message for note in names.notes[:1])])
         raise _error(where, f"pattern {shown(pattern)} selects no robot: {why}")
     order = {name: i for i, name in enumerate(hosts)}
     return tuple(sorted(chosen, key=order.__getitem__))
+
+
+def _everyone(hosts: Sequence[str], groups: Mapping[str, Sequence[str]], where: str) -> tuple[str, ...]:
+    """No pattern is Ansible's `all`: every host but those in no group at all (listed under an
+    `ungrouped` that another group holds), which only their own name selects."""
+    every = groups.get("all")
+    if every is None or len(every) == len(hosts):
+        return tuple(hosts)
+    members = frozenset(every)
+    chosen = tuple(name for name in hosts if name in members)
+    if not chosen:
+        raise _error(where, "no robot is in the inventory's `all` group (each is listed under an `ungrouped` that "
+                            "another group holds): put the robots in a group of their own, or name them")
+    return chosen
 
 
 def _refuse_control(pattern: str, where: str) -> None:
@@ -128,10 +158,12 @@ def _refuse_control(pattern: str, where: str) -> None:
                             "a file and give @FILE")
 
 
-def _why_nothing(unmatched: list[Problem], count: int) -> str:
+def _why_nothing(unmatched: list[Problem], count: int, terms: list[str]) -> str:
     """The unmatched terms of a pattern that selects nothing, the first few only: a 5,000-character
     `a1:a2:...` made one message of 100 KB. `unmatched` is their warnings (the named ones and the
     count of the rest); `count` how many terms matched nothing."""
+    if not count and not any(t[0] in "&!" or _split_subscript(t)[1] for t in terms):
+        return "the groups it names hold no host"
     if not count:
         return "every term names something, but together (&, !, [n]) they leave nothing; loosen the pattern"
     more = count - MAX_SHOWN_TERMS
@@ -143,11 +175,49 @@ def split(pattern: str) -> list[str]:
     """Terms of a pattern, as Ansible splits it (split_host_pattern)."""
     if "," in pattern:
         parts = pattern.split(",")
-    elif _HOST_PORT.fullmatch(pattern.strip()):
-        parts = [pattern]   # `host:22` is one address, not two terms
+    elif _is_address(pattern.strip()):
+        parts = [pattern]   # `host:22`, `fe80::1`, `[::1]:2223`: one address, not several terms
     else:
         parts = _TERM.findall(pattern)
     return [p.strip() for p in parts if p.strip()]
+
+
+def _is_address(text: str) -> bool:
+    """Whether Ansible's split reads `text` as one host address (a name, IPv4 or IPv6 address,
+    ranges allowed, maybe with a port), which it then keeps whole."""
+    host = _without_port(text)
+    return _is_host_name(host) or _is_ipv6(host)
+
+
+def _without_port(text: str) -> str:
+    # In this order, each at most once, as Ansible does: `[web:22]:33` is the host `web`.
+    found = _BRACKETED_PORT.fullmatch(text)
+    text = found[1] if found else text
+    found = _PLAIN_PORT.fullmatch(text)
+    return found[1] if found else text
+
+
+def _is_host_name(text: str) -> bool:
+    return all(_LABEL.fullmatch(label) for label in text.split("."))
+
+
+def _is_ipv6(text: str) -> bool:
+    if not _V6_TEXT.fullmatch(text):
+        return False
+    plain = _V6_RANGE.sub("r", text)
+    if "." in plain:
+        head, _, v4 = plain.rpartition(":")
+        parts = v4.split(".")
+        return len(parts) == 4 and all(_V6_GROUP.fullmatch(p) for p in parts) and \
+            head.lower() + ":" in _V4_IN_V6
+    sides = plain.split("::")
+    groups = [side.split(":") if side else [] for side in sides]
+    if len(sides) > 2 or not all(_V6_GROUP.fullmatch(g) for side in groups for g in side):
+        return False
+    if len(sides) == 1:
+        return len(groups[0]) == 8
+    # `::` stands for at least one zero group, and Ansible writes at most six groups on a side.
+    return len(groups[0]) + len(groups[1]) <= 7 and max(map(len, groups)) <= 6
 
 
 def _read_files(terms: list[str], where: str) -> list[str]:
@@ -397,13 +467,41 @@ def _unmatched(terms: list[str], names: _Names, strict: bool) -> list[Problem]:
 
 
 def _one_unmatched(term: str, names: _Names, strict: bool) -> Problem:
-    hint = suggest.did_you_mean(term, [*names.groups, *names.hosts]) or "check the spelling against the inventory"
+    reading = _misread(term, names)
+    what = f"{shown(term)} reads as {reading}, which selects no host" if reading else \
+        f"{shown(term)} matches no host or group"
     where = names.where
     if strict:
-        return Problem(where, None, "", f"exclusion {shown(term)} matches no host or group: {hint} (an exclusion "
-                                        "that excludes nothing would deploy to the robots meant to be left out)")
-    return Problem(where, None, "", f"{shown(term)} matches no host or group, ignored (as Ansible does): {hint}",
-                   severity="warning")
+        return Problem(where, None, "", f"exclusion {what}: {_hint(term, names)} (an exclusion that excludes "
+                                        "nothing would deploy to the robots meant to be left out)")
+    return Problem(where, None, "", f"{what}, ignored (as Ansible does): {_hint(term, names)}", severity="warning")
+
+
+def _misread(term: str, names: _Names) -> str | None:
+    """How a pattern reads a term that is also a group's exact name (`g[0]`, `~i`): the group exists,
+    but the pattern looks for something else, as Ansible's does."""
+    if term not in names.groups:
+        return None
+    if term.startswith("~"):
+        return f"the regular expression {shown(term[1:])}"
+    base, subscript = _split_subscript(term)
+    if subscript is not None:
+        start, end = subscript
+        items = f"item {start}" if end is None else f"items {start} to {'the end' if end == -1 else end}"
+        return f"{items} of group {shown(base)}"
+    return "a glob" if _is_wildcard(term) else "a pattern"
+
+
+def _hint(term: str, names: _Names) -> str:
+    """What to write instead; never the term itself."""
+    if _misread(term, names):
+        return (f"group {shown(term)} exists, but a pattern cannot name it: rename the group (letters, digits, "
+                "'_', '-' and '.')")
+    host = _without_port(term)
+    if host != term and host in names.known:
+        return f"a pattern names a host without its port: did you mean {shown(host)}?"
+    choices = (name for name in (*names.groups, *names.hosts) if name != term)
+    return suggest.did_you_mean(term, choices) or "check the spelling against the inventory"
 
 
 def _error(where: str, message: str) -> InventoryError:

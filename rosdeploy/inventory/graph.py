@@ -55,7 +55,11 @@ class Graph:
 
 
 def _reconcile(draft: Draft) -> None:
-    """Ansible's fix-ups: orphan groups go under `all`; hosts in no other group are `ungrouped`."""
+    """Ansible's fix-ups: orphan groups go under `all`; hosts in no other group are `ungrouped`.
+
+    Ansible tests a host's groups with their ancestors: a host listed under `ungrouped` leaves it
+    when any other group holds it, and also when `ungrouped` itself sits under another group; it
+    then belongs to no group, not even `all`'s hosts (only its own name selects it)."""
     has_parent = {child for group in draft.groups.values() for child in group.children}
     root = draft.groups["all"]
     for name, group in draft.groups.items():
@@ -66,11 +70,30 @@ def _reconcile(draft: Draft) -> None:
         for host in group.hosts:
             member_of[host].add(name)
     ungrouped = draft.groups["ungrouped"].hosts
+    listed = dict(ungrouped)
+    nested = "ungrouped" in has_parent and _nested_ungrouped(draft)
     for host, groups in member_of.items():
-        if groups - {"all", "ungrouped"}:
+        if groups - {"all", "ungrouped"} or (nested and host in listed):
             ungrouped.pop(host, None)
-        else:
+        elif host not in listed:
             ungrouped[host] = None
+
+
+def _nested_ungrouped(draft: Draft) -> bool:
+    """Whether a group other than `all` holds `ungrouped`, each such edge warned about at its line."""
+    found = False
+    for name, group in draft.groups.items():
+        origin = group.children.get("ungrouped") if name not in ("all", "ungrouped") else None
+        if origin is not None:
+            found = True
+            draft.warnings.append(origin.problem((), f"group {shown(name)} holds `ungrouped`, Ansible's implicit "
+                                                     "group of the hosts in no other group: nested, it should not be. "
+                                                     "As in Ansible, the hosts listed under `ungrouped` then belong "
+                                                     f"to no group (not {shown(name)}, not `all`: only their own "
+                                                     f"name selects them), and hosts in no group join {shown(name)}; "
+                                                     "put the hosts in a group of their own instead",
+                                                 severity="warning"))
+    return found
 
 
 def _report_cycles(draft: Draft) -> bool:
@@ -136,10 +159,17 @@ def _priority(group: GroupDraft, draft: Draft) -> int:
     # Only inline vars set it, as in Ansible (group_vars files are read too late to reorder).
     for layer in reversed(group.inline):
         if "ansible_group_priority" in layer.vars:
+            value = layer.vars["ansible_group_priority"]
             try:
-                return to_int(layer.vars["ansible_group_priority"], "an integer, e.g. 10")
+                return to_int(value, "an integer, e.g. 10")
             except BadValue as bad:
-                draft.problems.append(layer.origin.problem(("ansible_group_priority",), bad.message))
+                # YAML's spelling, as the file has it: `got true`, not Python's `got True`
+                message = bad.message if value is not None and not isinstance(value, bool) else \
+                    f"must be an integer, e.g. 10, got {_YAML_WORDS[value]}"
+                draft.problems.append(layer.origin.problem(("ansible_group_priority",), message))
     return 1
+
+
+_YAML_WORDS = {True: "true", False: "false", None: "null"}
 
 

@@ -28,12 +28,13 @@ def assemble(draft: Draft, graph: Graph, root: Path, base: Path) -> Inventory:
                                       "selects the host only, as in Ansible; rename one", severity="warning"))
     direct = _direct_groups(draft)
     host_groups = {name: _host_groups(direct[name], graph) for name in draft.hosts}
+    inline = {name: [_no_priority(layer) for layer in group.inline] for name, group in draft.groups.items()}
     ordered = {name: ansible_order(name, draft) for name in draft.groups}
     hostvars: dict[str, HostVars] = {}
-    magic = {"groups": {name: list(hosts) for name, hosts in ordered.items()}, "hostvars": hostvars}
+    magic: dict[str, Any] = {"groups": {name: list(hosts) for name, hosts in ordered.items()}, "hostvars": hostvars}
     # every host's vars exist before any is read: `hostvars['b']` in a's vars finds b, wherever b is
     # declared (Ansible's order does not matter there either)
-    merged = {name: _host_vars(host, host_groups[name], draft, magic) for name, host in draft.hosts.items()}
+    merged = {name: _host_vars(host, host_groups[name], draft, inline, magic) for name, host in draft.hosts.items()}
     hosts: dict[str, Host] = {}
     for name, host in draft.hosts.items():
         built = _build_host(host, host_groups[name], draft, *merged[name])
@@ -42,7 +43,7 @@ def assemble(draft: Draft, graph: Graph, root: Path, base: Path) -> Inventory:
     if not draft.hosts and not draft.problems:
         draft.problems.append(Problem(str(base), None, "", "the inventory defines no hosts: add robots "
                                                            "under a group's hosts:"))
-    groups = {name: _group(group, ordered[name], graph) for name, group in draft.groups.items()}
+    groups = {name: _group(group, inline[name], ordered[name], graph) for name, group in draft.groups.items()}
     return Inventory(str(root), frozen_map(hosts), frozen_map(groups), _folded(draft.warnings))
 
 
@@ -97,8 +98,8 @@ def _host_groups(direct: list[str], graph: Graph) -> tuple[str, ...]:
     return tuple(sorted(every, key=graph.order.__getitem__))
 
 
-def _group(group: GroupDraft, hosts: tuple[str, ...], graph: Graph) -> Group:
-    merged, _ = _merge(chain(group.inline, group.files))
+def _group(group: GroupDraft, inline: list[Layer], hosts: tuple[str, ...], graph: Graph) -> Group:
+    merged, _ = _merge(chain(inline, group.files))
     return Group(group.name, hosts, tuple(group.children), graph.parents[group.name],
                  frozen_map(merged), group.source)
 
@@ -109,23 +110,31 @@ def _merge(layers: Iterable[Layer]) -> tuple[dict[str, Any], dict[str, Origin]]:
     for layer in layers:
         merged.update(layer.vars)
         origins.update(dict.fromkeys(layer.vars, layer.origin))
-    merged.pop("ansible_group_priority", None)  # a group setting, not a variable (as in Ansible)
     return merged, origins
 
 
-def _host_layers(host: HostDraft, groups: tuple[str, ...], draft: Draft) -> list[Layer]:
-    """Ansible's precedence, lowest first (see the module docstring)."""
-    others = [draft.groups[g] for g in groups if g != "all"]
-    root = draft.groups["all"]
-    return [*root.inline, *chain.from_iterable(g.inline for g in others),
-            *root.files, *chain.from_iterable(g.files for g in others),
+def _no_priority(layer: Layer) -> Layer:
+    """A group's inline vars without `ansible_group_priority`: there it is a group setting, not a
+    variable, as in Ansible; set in a group_vars file or on a host it is a var like any other."""
+    if "ansible_group_priority" not in layer.vars:
+        return layer
+    return replace(layer, vars={k: v for k, v in layer.vars.items() if k != "ansible_group_priority"})
+
+
+def _host_layers(host: HostDraft, groups: tuple[str, ...], draft: Draft,
+                 inline: dict[str, list[Layer]]) -> list[Layer]:
+    """Ansible's precedence, lowest first (see the module docstring); `inline` is each group's
+    inline layers as vars (_no_priority)."""
+    others = [g for g in groups if g != "all"]
+    return [*inline["all"], *chain.from_iterable(inline[g] for g in others),
+            *draft.groups["all"].files, *chain.from_iterable(draft.groups[g].files for g in others),
             *host.inline, *host.files]
 
 
-def _host_vars(host: HostDraft, groups: tuple[str, ...], draft: Draft, magic: dict[str, Any],
-               ) -> tuple[HostVars, dict[str, Origin], list[Layer]]:
+def _host_vars(host: HostDraft, groups: tuple[str, ...], draft: Draft, inline: dict[str, list[Layer]],
+               magic: dict[str, Any]) -> tuple[HostVars, dict[str, Origin], list[Layer]]:
     """One host's merged vars (templated on first read), registered in `hostvars`."""
-    layers = _host_layers(host, groups, draft)
+    layers = _host_layers(host, groups, draft, inline)
     merged, origins = _merge(layers)
     source_file = os.path.abspath(split_where(host.source)[0])
     hostvars = HostVars(host.name, merged, origins, {

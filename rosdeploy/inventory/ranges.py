@@ -4,6 +4,7 @@ from __future__ import annotations
 import ipaddress
 import re
 import string
+import unicodedata
 import weakref
 from typing import Any
 
@@ -135,14 +136,9 @@ def _range_items(start: str, end: str, stride: int) -> list[str]:
 
 
 def valid_name(name: str, origin: Origin, draft: Draft, what: str) -> bool:
-    if NAME.fullmatch(name) or (what == "host" and _ipv6(name)):
-        return True
-    if what == "group" and name and not any(c.isspace() or not c.isprintable() for c in name):
-        # Ansible keeps such a group name, with a warning (TRANSFORM_INVALID_GROUP_CHARS=never).
-        draft.warnings.append(origin.problem((), f"group name {shown(name)} holds characters other than letters, "
-                                                 "digits, '_', '-' and '.': kept, as Ansible does, but patterns "
-                                                 "and shells may read it differently; rename it",
-                                             severity="warning"))
+    if what == "group":
+        return _valid_group(name, origin, draft)
+    if NAME.fullmatch(name) or _ipv6(name) or _idna(name):
         return True
     if name[:1] in ("-", ".") and NAME.fullmatch("x" + name):
         draft.problems.append(origin.problem((), f"invalid {what} name {shown(name)}: it may not start with "
@@ -153,6 +149,62 @@ def valid_name(name: str, origin: Origin, draft: Draft, what: str) -> bool:
                                              "'_', '-' and '.' (other characters clash with patterns "
                                              "and shells)"))
     return False
+
+
+# Ansible's rule for a group name, a variable name: word characters (Unicode letters count), not
+# starting with a digit. It keeps any other name, with "Invalid characters were found in group names".
+_ANSIBLE_GROUP = re.compile(r"[^\W\d]\w*")
+_NOT_WORD = re.compile(r"\W")
+# What a `--limit` pattern, a shell or a path reads as its own.
+_PATTERN_CHARS = frozenset(":,!&*?[]~@$`'\"\\/;|<>(){}#%^=+")
+
+
+def _valid_group(name: str, origin: Origin, draft: Draft) -> bool:
+    if _ANSIBLE_GROUP.fullmatch(name):
+        return True
+    if not name or any(c.isspace() or not c.isprintable() for c in name):
+        draft.problems.append(origin.problem((), f"invalid group name {shown(name)}: use letters, digits, "
+                                                 "'_', '-' and '.' (other characters clash with patterns "
+                                                 "and shells)"))
+        return False
+    draft.warnings.append(origin.problem((), _odd_group(name), severity="warning"))
+    return True
+
+
+def _odd_group(name: str) -> str:
+    """Why Ansible warns about a group name it keeps (TRANSFORM_INVALID_GROUP_CHARS=never), and
+    whether it matters beyond the warning."""
+    causes = []
+    if name[0] == "-":
+        causes.append("starts with '-' (a command line reads it as an option)")
+    elif name[0].isdigit():
+        causes.append("starts with a digit")
+    odd = sorted(set(_NOT_WORD.findall(name[1:] if name[0] == "-" else name)))
+    if odd:
+        causes.append("holds " + ", ".join(shown(c) for c in odd))
+    risky = name[0] in "-." or bool(_PATTERN_CHARS & set(name))
+    better = _NOT_WORD.sub("_", name)
+    better = "_" + better if better[0].isdigit() else better
+    advice = ("patterns and shells may read it differently: rename it" if risky else
+              f"rename it (e.g. {shown(better)}) to silence this")
+    return (f"group name {shown(name)} {' and '.join(causes)}: Ansible warns \"Invalid characters were found in "
+            "group names\" (its group names are letters, digits and '_', not starting with a digit) and keeps it, "
+            f"as rosdeploy does; {advice}")
+
+
+def _idna(name: str) -> bool:
+    """A host name with non-ASCII letters (`bücher.example`), as Ansible takes it and the resolver
+    reaches it (IDNA). Only letters, marks, ASCII digits, '-', '_' and '.', so nothing a shell or a
+    path reads; in NFKC form, so `ｒ1` is no second spelling of `r1`; not starting with '-' or '.'."""
+    if name.isascii() or name[:1] in ("-", ".", "") or unicodedata.normalize("NFKC", name) != name:
+        return False
+    if not all(c.isalnum() or c in "-_." if c.isascii() else unicodedata.category(c)[0] in "LM" for c in name):
+        return False
+    try:
+        name.encode("idna")     # a label too long or empty, or mixed writing directions
+    except UnicodeError:
+        return False
+    return True
 
 
 def _ipv6(name: str) -> bool:
