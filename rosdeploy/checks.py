@@ -26,7 +26,7 @@ import xml.etree.ElementTree as ET
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence, cast
 
 import yaml
 
@@ -111,6 +111,29 @@ class Target:
             if volume.get("driver", "local") in ("local", None) and ("bind" in options or "rbind" in options) and \
                     opts.get("device"):
                 found[str(name)] = (str(opts.get("device", "")), "ro" in options)
+        return found
+
+    @functools.cached_property    # frozen, and asked once per service
+    def disk_volumes(self) -> Mapping[str, tuple[str, str, bool]]:
+        """Top-level volumes the local driver mounts from a robot device as a file system
+        (`driver_opts: {type: ext4, device: /dev/sda1}`), as name -> (device, type, read-only): the engine
+        mounts the robot's disk itself, so the container reads (or writes) every file on it. A bind (`o: bind`,
+        bind_volumes), `type: none`, a remote file system (nfs, cifs: `device` is no /dev path) and
+        tmpfs are not."""
+        volumes = (self.compose or {}).get("volumes")
+        found: dict[str, tuple[str, str, bool]] = {}
+        for name, volume in (volumes.items() if isinstance(volumes, dict) else ()):
+            opts = _dig(volume, "driver_opts")
+            device = opts.get("device")
+            if not isinstance(device, str) or not device.startswith("/") or volume.get("external") or \
+                    volume.get("driver", "local") not in ("local", None):
+                continue
+            kind = str(opts.get("type", ""))
+            options = str(opts.get("o", "")).replace(" ", "").split(",")
+            device = _normal_path(device)
+            if (device == "/dev" or device.startswith("/dev/")) and kind not in ("none", "bind", "rbind") and \
+                    not ("bind" in options or "rbind" in options):
+                found[str(name)] = (device, kind, "ro" in options)
         return found
 
 
@@ -608,8 +631,9 @@ def _host_changes_no_root(ctx: Context, host: Host) -> Iterator[Problem]:
 
 @rule("compose-invalid", "error", "release",
       "The rendered compose.yml is one YAML document with a `services` mapping, brings in nothing `check` cannot "
-      "see (`include`, `extends`, `volumes_from`, `env_file`, a `container:NAME` namespace, a variable from the "
-      "robot's environment) and sets only namespaced sysctls, and has no bare text that YAML 1.2 (Compose v2) "
+      "see (`include`, `extends`, `volumes_from`, `env_file`, `build`, a `container:NAME` namespace, a variable "
+      "from the robot's environment) and sets only namespaced sysctls and no value Docker refuses at `up` (as the "
+      "fleet's `compose:` is held to), and has no bare text that YAML 1.2 (Compose v2) "
       "reads as a number (`1e3`) nor a boolean Compose refuses; its .env reads the same in Compose v1 and v2.",
       "Fix the compose template (the fleet file's `templates:` folder, or report a bug in the built-in one).")
 def _compose_invalid(ctx: Context, t: Target) -> Iterator[Problem]:
@@ -644,12 +668,16 @@ def _compose_invalid(ctx: Context, t: Target) -> Iterator[Problem]:
         yield from _brings_in(ctx, t)
     if t.release.compose_data is None:      # a user's template: the built-in writes real booleans, no ${VAR}
         yield from _unread(ctx, t)
+    user = t.release.compose_data is None     # the built-in template writes `compose:` values fleet.py checked
     for name, svc in t.services.items():
         # the built-in template's services have none of these keys: skip them at the cost of a lookup
         if isinstance(svc, dict) and not (_SUSPECT_KEYS.isdisjoint(svc) and
                                           not str(svc.get("network_mode", "")).startswith("container:")):
             yield from _brought_in(ctx, name, svc)
             for keypath, message in _refused_sysctls(name, svc):
+                yield _service_problem(ctx.spec, name, keypath, message)
+        if user and isinstance(svc, dict) and not _DOCKER_VALUE_KEYS.isdisjoint(svc):
+            for keypath, message in _docker_refused(name, svc, t.services):
                 yield _service_problem(ctx.spec, name, keypath, message)
     yield from _schema_problems(ctx, t)
 
@@ -717,7 +745,7 @@ def _robot_env_refs(t: Target) -> Iterator[tuple[tuple, str]]:
                     break
 
 
-_SUSPECT_KEYS = frozenset({"extends", "volumes_from", "env_file", "pid", "ipc", "sysctls"})
+_SUSPECT_KEYS = frozenset({"extends", "volumes_from", "env_file", "label_file", "build", "pid", "ipc", "sysctls"})
 _STR_TAG = "tag:yaml.org,2002:str"
 
 
@@ -953,6 +981,10 @@ def _outside_keys(svc: Mapping[str, Any]) -> Iterator[tuple[str, str]]:
         yield "volumes_from", "another container's mounts"
     if svc.get("env_file"):
         yield "env_file", "environment from a file on the robot (set `environment:` or `secrets:`)"
+    if svc.get("label_file"):     # Compose v2's: labels rosdeploy renders (io.rosdeploy.*) from a file
+        yield "label_file", "labels from a file on the robot (write `labels:`)"
+    if svc.get("build"):     # `up` builds it where the image is not pulled: not the version `check` judged
+        yield "build", "an image built on the robot from its own folder (run the registry's image: `image:`)"
     for key in ("pid", "ipc", "network_mode"):
         if str(svc.get(key, "")).startswith("container:"):
             yield key, f"the namespace of a container outside the project ({shown(str(svc[key]))})"
@@ -967,6 +999,65 @@ def _refused_sysctls(name: str, svc: Mapping[str, Any]) -> Finding:
         if why:
             yield ("services", name, "compose", "sysctls", at), (
                 f"service {shown(name)} of {ROBOTS} sets sysctl {shown(sysctl)}, which {why}; set it on the robot")
+
+
+# The service keys fleet._check_compose_values and _check_compose_formats judge (what Docker or
+# Compose refuses at `up` though the schema lets it through), and `ipc`/`pid: service:NAME`.
+_DOCKER_VALUE_KEYS = frozenset({"working_dir", "dns", "isolation", "pid", "userns_mode", "ipc", "storage_opt",
+                                "stop_signal", "ulimits", "mem_swappiness", "stop_grace_period", "ports", "expose",
+                                "extra_hosts", "cpuset", "blkio_config", "cgroup"})
+
+
+class _Said:
+    """What fleet.py's compose value checks say, collected: the one method of their Reader they call."""
+
+    def __init__(self) -> None:
+        self.said: list[tuple[tuple, str]] = []
+
+    def error(self, kp: tuple, message: str) -> None:
+        self.said.append((kp, message))
+
+
+def _docker_refused(name: str, svc: Mapping[str, Any], services: Mapping[str, Any]) -> Finding:
+    """A user template's service values Docker or Compose refuses at `up` on every robot, as fleet.py
+    judges the fleet's `compose:` keys (README: "what Docker refuses at the robot is refused here")."""
+    values = {k: svc[k] for k in _DOCKER_VALUE_KEYS if k in svc}
+    for kp, why in _value_refusals(repr(values), values):
+        at = ".".join(map(str, kp))
+        yield ("services", name, "compose", *kp), (
+            f"service {shown(name)} of {ROBOTS} has `{at}` in the rendered compose.yml, which Docker or Compose "
+            f"refuses at `up`: {why}; fix the compose template")
+    cgroup = svc.get("cgroup")     # Compose v2's key: the v1 schema of _schema_problems lets any value pass
+    if cgroup is not None and cgroup not in ("host", "private"):
+        yield ("services", name, "compose", "cgroup"), (
+            f"service {shown(name)} of {ROBOTS} has `cgroup: {cgroup!r}` in the rendered compose.yml: Compose takes "
+            "only `host` or `private` (lower case) and refuses the file; fix the compose template")
+    for key in ("ipc", "pid"):
+        shared = svc.get(key)
+        target = shared[len("service:"):] if isinstance(shared, str) and shared.startswith("service:") else None
+        if target is not None and (target == name or target not in services):
+            why = f"its own {key} namespace (a cycle)" if target == name else f"{key}: no service is named `{target}`"
+            yield ("services", name, "compose", key), (
+                f"service {shown(name)} of {ROBOTS} shares {why} in the rendered compose.yml: Compose refuses the "
+                "file; fix the compose template")
+
+
+# fleet.py's findings by the repr of the values: lru_cache cannot key on a service's lists and mappings
+_REFUSALS: dict[str, tuple[tuple[tuple, str], ...]] = {}
+
+
+def _value_refusals(written: str, values: dict) -> tuple[tuple[tuple, str], ...]:
+    """fleet.py's findings on `values`, by their repr (`written`): a fleet's robots share them."""
+    found = _REFUSALS.get(written)
+    if found is None:
+        from rosdeploy.fleet import _check_compose_formats, _check_compose_values
+        said = _Said()
+        _check_compose_values(cast(Any, said), (), values)
+        _check_compose_formats(cast(Any, said), (), values)
+        if len(_REFUSALS) > 4096:
+            _REFUSALS.clear()
+        found = _REFUSALS[written] = tuple(said.said)
+    return found
 
 
 _SYSCTL_REFUSED = {
@@ -1085,7 +1176,8 @@ def _holds_engine_socket(source: str) -> bool:
     return source.startswith("/") and any(sock.startswith(folder.rstrip("/") + "/") for sock in _ENGINE_SOCKETS)
 
 
-@rule("device-root", "error", "service", "No container maps a device that is root on the robot.",
+@rule("device-root", "error", "service", "No container maps a device that is root on the robot, nor mounts a disk "
+      "through a named volume (`driver_opts: {type: ext4, device: /dev/sda1}`).",
       "Map only the device the node needs (a serial port, a camera); add `allow_privileged: true` if it is on "
       "purpose.")
 def _device_root(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
@@ -1095,6 +1187,17 @@ def _device_root(ctx: Context, t: Target, name: str, svc: dict) -> Finding:
             yield ("services", name, "devices"), (
                 f"service {shown(name)} maps {path} on {ROBOTS}, {what}: whoever controls the container is root on the "
                 "robot; map only the device the node needs, or set `allow_privileged: true` to say it is on purpose")
+    disks = t.disk_volumes     # {} for the built-in template's output: nothing more per service
+    for entry, source in _unwaived_sources(ctx, name, svc, "volumes") if disks else ():
+        if source in disks and (not isinstance(entry, dict) or entry.get("type", "volume") == "volume"):
+            device, kind, read_only = disks[source]
+            writes = _writable(entry) and not read_only
+            yield ("services", name, "volumes"), (
+                f"service {shown(name)} mounts volume {shown(source)}, which the engine mounts from {device}"
+                f"{f' as {shown(kind)}' if kind else ''} on {ROBOTS}, which is a disk (every file on it, /etc/shadow "
+                f"included, can be {'rewritten' if writes else 'read'}): whoever controls the container "
+                f"{'is root on' if writes else 'reads every secret of'} the robot; mount only the folder the node "
+                "needs, or set `allow_privileged: true` to say it is on purpose")
 
 
 def _unwaived_sources(ctx: Context, name: str, svc: dict, key: str) -> Iterator[tuple[Any, str]]:
