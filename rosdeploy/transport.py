@@ -660,6 +660,11 @@ def _read_known_hosts(path: str) -> str:
     if size > MAX_KNOWN_HOSTS:
         raise UnusableKnownHosts(path, f"is larger than {MAX_KNOWN_HOSTS >> 20} MB: that is no known_hosts file")
     data = b"".join(chunks)
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in data[:2]:
+        # (a BOM, or ASCII's zero high bytes) every line of it would be skipped as an unknown key type
+        raise UnusableKnownHosts(path, "is not UTF-8 (it looks like UTF-16): save it as UTF-8, as ssh-keyscan "
+                                       "writes it")
+    # any other stray byte: only the lines that hold one and are then unreadable are skipped, saying so
     return data.decode("utf-8", errors="replace")
 
 
@@ -715,6 +720,8 @@ _KEY_TYPE = re.compile(r"[A-Za-z0-9@._+-]{1,64}")
 
 def _why_unreadable(fields: list[str]) -> str:
     """Why a line is no host key rosdeploy can read, named without its text (it may be any bytes)."""
+    if any("\ufffd" in field for field in fields):     # what _read_known_hosts put for a byte not UTF-8
+        return "holds a byte that is not UTF-8, skipped; save the file as UTF-8"
     if fields[0].startswith("@"):
         return ("an unknown marker, skipped (OpenSSH knows @cert-authority and @revoked, in lower case); fix or "
                 "remove it")

@@ -33,9 +33,14 @@ MAX_FILE_BYTES = 64 << 20  # a 5,000-robot inventory is ~1 MiB
 # cost: `x: [1,1,...]` is 2 bytes a value, and each value costs ~500 bytes and ~6 µs by the time a
 # robot is rendered (5 MB of it: 15 s, 1.2 GB). A 5,000-robot inventory is ~60,000 values.
 MAX_NODES = 250_000
+# A string's length: sandbox.MAX_LENGTH, the renderer's bound on any value (it imports this module).
+# A longer one could never be used; refused as the file is read, at its line, before libyaml builds it
+# (a 64 MiB scalar costs libyaml four times its size: near 300 MB).
+MAX_STRING = 1_000_000
 # An integer's size. Python refuses to write one of over 4,300 digits (str() raises ValueError),
 # and `0x` + 4,000 hex digits builds one: every message or JSON that shows it would crash.
 MAX_INT_BITS = 14_000      # about 4,200 decimal digits
+_INT_DIGITS = 4_300        # sys.get_int_max_str_digits()'s default: the digits int() reads
 
 
 _COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
@@ -57,6 +62,13 @@ _INT_TAG = "tag:yaml.org,2002:int"
 _NOT_TEXT = re.compile("[\ud800-\udfff\ufdd0-\ufdef\ufffe\uffff"
                        + "".join(chr(plane << 16 | 0xfffe) + chr(plane << 16 | 0xffff) for plane in range(1, 17))
                        + "]")
+# Control characters YAML refuses written raw in a file (PyYAML's reader; a tab and the line breaks
+# are allowed). An escape (`"a\0b"` in YAML, `"\u0000"` in JSON, a raw byte or `"\x00"` in INI) builds one
+# all the same: refused at its file:line too, as the raw one is, rather than at whatever fleet key
+# later uses it (a NUL reaches no environment variable, command line or file name intact).
+_CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x84\x86-\x9f]")
+_CONTROL_NAMES = {0x07: "BEL", 0x08: "backspace", 0x0b: "vertical tab", 0x0c: "form feed",
+                  0x1b: "ESC", 0x7f: "DEL"}
 # What json.dumps writes for a character past U+FFFF: an escaped surrogate pair, which JSON (and
 # Ansible, reading .json with a JSON parser) joins into one character, and libyaml refuses.
 _JSON_PAIR = re.compile(r"(?<!\\)((?:\\\\)*)\\u([dD][89abAB][0-9a-fA-F]{2})\\u([dD][c-fC-F][0-9a-fA-F]{2})")
@@ -73,9 +85,12 @@ class Encrypted(str):
 class _Constructor(yaml.constructor.SafeConstructor):
     """Builds scalars (and resolves `<<` merges); refusing duplicate keys is _build_mapping's job."""
 
-    # Whether the text holds a `\u`/`\U` escape: only such an escape builds a string not_text
-    # refuses (libyaml refuses the characters written raw), so only then is each string searched.
+    # Whether the text holds a backslash: only an escape (`\u`, `\0`, `\x1b`...) builds a string
+    # not_text refuses (libyaml refuses the characters written raw), so only then is each string searched.
     escapes = True
+    # Whether a control character (an escape's) is refused here: in an inventory (load's `duplicates`
+    # given). The fleet file refuses them itself, each key once (fleet.Reader.scan_control_chars).
+    controls = False
     # Where octal-looking numbers are warned of (load's `duplicates` or `warnings`), and whether at
     # every key but a mode's (the fleet file) or at the inventory's _NUMBER_KEYS only.
     octal: list[Problem] | None = None
@@ -149,10 +164,13 @@ def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | 
     (the inventory's warnings) also gets one for an octal-looking number (_octal_warning)
     at a key the inventory reads as a number. `warnings` (the fleet file's, whose
     duplicate keys stay errors) gets one for an octal-looking number at any key but a mode.
+    An inventory's (`duplicates` given) control character written as an escape (`"a\\0b"`) is
+    refused at its line, as libyaml refuses it written raw.
 
     Bounded for every caller (fleet file, inventory, vars files, rendered compose files):
     nesting deeper than MAX_DEPTH and alias expansion beyond MAX_EXPANSION times the
-    document's own size are refused before anything is built.
+    document's own size are refused before anything is built, and so is a string longer
+    than MAX_STRING, at its line.
     """
     path = str(path)
     if text is None:
@@ -162,6 +180,8 @@ def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | 
     try:
         _check_depth(text)
         node = yaml.compose(text, Loader=_Composer)
+    except _TooLong as exc:
+        raise InputError([Problem(path, exc.line, exc.key, str(exc))]) from None
     except yaml.YAMLError as exc:
         kind = "JSON" if path.endswith(".json") else "YAML"   # read as YAML, which JSON is
         raise InputError([Problem(path, _error_line(exc, text), "", f"invalid {kind}: {_syntax_text(exc, text)}")]) \
@@ -173,7 +193,8 @@ def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | 
     _check_expansion(node, path, text)
     lines: dict[KeyPath, int] = {}
     constructor = _Constructor()
-    constructor.escapes = "\\u" in text or "\\U" in text
+    constructor.escapes = "\\" in text
+    constructor.controls = duplicates is not None
     constructor.octal = warnings if warnings is not None else duplicates
     constructor.octal_anywhere = warnings is not None
     return Doc(path, _build(node, (), lines, path, constructor, duplicates), lines)
@@ -184,6 +205,8 @@ def load_data(text: str, path: str = "<text>") -> Any:
     try:
         _check_depth(text)
         node = yaml.compose(text, Loader=_Composer)
+    except _TooLong as exc:
+        raise InputError([Problem(path, exc.line, exc.key, str(exc))]) from None
     except yaml.YAMLError as exc:
         raise InputError([Problem(path, _error_line(exc, text), "", f"invalid YAML: {_syntax_text(exc, text)}")]) \
             from exc
@@ -193,7 +216,8 @@ def load_data(text: str, path: str = "<text>") -> Any:
     try:
         return _Constructor().construct_document(node)
     except (yaml.YAMLError, TypeError, ValueError) as exc:   # an unhashable key; an int of 4,300+ digits
-        raise InputError([Problem(path, node.start_mark.line + 1, "", f"invalid YAML: {exc}")]) from exc
+        why = "an integer of more than 4,300 digits" if isinstance(exc, ValueError) and "digits" in str(exc) else exc
+        raise InputError([Problem(path, node.start_mark.line + 1, "", f"invalid YAML: {why}")]) from exc
 
 
 def read_bytes(path: str, limit: int = MAX_FILE_BYTES, what: str = "a YAML file") -> bytes:
@@ -235,18 +259,19 @@ def decoded(path: str, data: bytes) -> str:
                                                   f"{utf16}: save the file as UTF-8")]) from None
 
 
-def not_text(value: Any) -> str | None:
+def not_text(value: Any, controls: bool = False) -> str | None:
     """Why `value` (a string, or a list or mapping holding strings, keys included) cannot be written
-    into a file rosdeploy writes, or None: a lone surrogate or a noncharacter (see _NOT_TEXT).
+    into a file rosdeploy writes, or None: a lone surrogate or a noncharacter (see _NOT_TEXT), and
+    with `controls` (a value read from a file: the inventory's) a control character (see _CONTROL).
     The reason names the code point, never the value (it may be a secret)."""
     if isinstance(value, str):      # most calls
-        found = _search_not_text(value)
+        found = _search_not_text(value, controls)
         return None if found is None else _not_text_reason(found[0])
     stack, seen = [value], set()
     while stack:
         item = stack.pop()
         if isinstance(item, str):
-            found = _search_not_text(item)
+            found = _search_not_text(item, controls)
             if found is not None:
                 return _not_text_reason(found.group())
         elif isinstance(item, (list, tuple, dict)) and id(item) not in seen:
@@ -255,13 +280,23 @@ def not_text(value: Any) -> str | None:
     return None
 
 
-def _search_not_text(text: str) -> re.Match[str] | None:
-    # isascii() first: 60 ns, where the search (its class holds astral characters) takes 2 µs
-    return None if text.isascii() else _NOT_TEXT.search(text)
+def _search_not_text(text: str, controls: bool = False) -> re.Match[str] | None:
+    # isascii() first: 60 ns, where the search (its class holds astral characters) takes 2 µs;
+    # isprintable() (false for any control character) spares the control search most strings
+    found = None if text.isascii() else _NOT_TEXT.search(text)
+    if found is None and controls and not text.isprintable():
+        found = _CONTROL.search(text)
+    return found
 
 
 def _not_text_reason(char: str) -> str:
     code = f"U+{ord(char):04X}"
+    if char == "\0":     # "NUL byte", as the checks of paths and environment values say
+        return f"holds a NUL byte ({code}), which a YAML file may not hold (raw or as an escape): remove it"
+    if _CONTROL.fullmatch(char):
+        name = _CONTROL_NAMES.get(ord(char))
+        return (f"holds the control character {code}{f' ({name})' if name else ''}, which a YAML file may not "
+                "hold (raw or as an escape): remove it")
     if 0xD800 <= ord(char) <= 0xDFFF:
         return (f"holds a lone surrogate ({code}, half of a UTF-16 pair): not a character, so no file can hold "
                 "it; write the character itself (a pair such as \\ud83d\\ude00 in JSON is fine)")
@@ -355,15 +390,22 @@ def _check_depth(text: str) -> None:
     Block nesting needs a column per level, so depth <= longest line + flow brackets, and each
     value takes a character at least: only a file where either bound is high pays for the scan.
     """
-    brackets = text.count("[") + text.count("{")
-    if brackets + max(map(len, text.splitlines()), default=0) <= MAX_DEPTH and len(text) <= MAX_NODES:
+    # len(text) first: the longest line is found over a copy of every line, 64 MiB for a big file
+    if len(text) <= MAX_NODES and text.count("[") + text.count("{") + max(map(len, text.splitlines()),
+                                                                         default=0) <= MAX_DEPTH:
         return
+    if len(text) > MAX_STRING:
+        _check_long_lines(text)
+        _check_long_blocks(text)
     depth = count = 0
     for event in yaml.parse(text, Loader=_Composer):
         if isinstance(event, yaml.NodeEvent):     # a scalar, an alias or a collection's start
             count += 1
             if count > MAX_NODES:
                 _refuse_at(event, f"the document holds over {MAX_NODES} values: {_TOO_MANY_FIX}")
+            if isinstance(event, yaml.ScalarEvent) and len(event.value) > MAX_STRING:
+                line = cast(yaml.Mark, event.start_mark).line
+                raise _TooLong(_too_long(len(event.value)), line + 1, _key_on(_line_of(text, line)))
         if isinstance(event, yaml.CollectionStartEvent):
             depth += 1
             if depth > MAX_DEPTH:
@@ -378,6 +420,91 @@ _TOO_MANY_FIX = ("the value past the limit is here; split the data, or keep larg
 
 def _refuse_at(event: yaml.Event, problem: str) -> None:
     raise yaml.MarkedYAMLError(problem=problem, problem_mark=cast(yaml.Mark, event.start_mark))
+
+
+class _TooLong(Exception):
+    """A string past MAX_STRING, found before the document is built: its message, line and key."""
+
+    def __init__(self, message: str, line: int, key: str) -> None:
+        super().__init__(message)
+        self.line, self.key = line, key
+
+
+def _too_long(length: int) -> str:
+    return (f"a string of {length:,} characters, more than the {MAX_STRING:,} any value may have: keep large "
+            "data in a file the service reads (a `files:` source), not in a variable")
+
+
+# `key: value` (or `- key: value`) at a line's start, the value neither a collection, an anchor, an
+# alias, a tag nor a block scalar: a line that holds one scalar after its key.
+_KEY = (r"[ \t]*(?:-[ \t]+)*(?P<key>[^\s#'\"{}\[\],&*!|>%@`-][^:#\n]{0,1023}?|\"[^\"\\\n]{0,1024}\""
+        r"|'[^'\n]{0,1024}')[ \t]*:")
+_KEY_VALUE = re.compile(_KEY + r"[ \t]+(?P<quote>[^\s\[{&*!|>#])")
+_KEY_AT = re.compile(_KEY + r"(?:[ \t]|$)")
+
+
+def _key_on(line: str) -> str:
+    """The key a line starts with (`zz` of `  zz: x`), else "": named in a message about its value."""
+    found = _KEY_AT.match(line[:2100])
+    return found["key"].strip("'\"") if found else ""
+
+
+def _check_long_lines(text: str) -> None:
+    """Refuse `key: <a scalar of over MAX_STRING characters>` on one line before libyaml parses it (it
+    would hold the scalar three times over). Only a line past MAX_STRING can hold one; a window of
+    half that with no line break is inside such a line, so only len/half windows are searched. A line
+    this cannot judge (a flow list, a comment, a quoted escape) is left to the parse, which counts."""
+    half = MAX_STRING // 2
+    for window in range(0, len(text), half):
+        if text.find("\n", window, window + half) != -1:
+            continue
+        start = text.rfind("\n", 0, window) + 1
+        end = text.find("\n", window)
+        end = len(text) if end == -1 else end
+        found = _KEY_VALUE.match(text, start, min(end, start + 2100))
+        if end - start <= MAX_STRING or found is None:
+            continue
+        value, quote = found.start("quote"), found["quote"]
+        while text[end - 1] in " \t\r":
+            end -= 1
+        # another line break of YAML's (a lone CR, NEL, U+2028/9) may start another key
+        if any(text.find(c, value, end) != -1 for c in "\r\x85\u2028\u2029"):
+            continue
+        if quote in ("'", '"'):
+            # closed at the line's end and not before, with no escape: its length is the line's
+            if text[end - 1] != quote or text.find(quote, value + 1, end - 1) != -1 or \
+                    text.find("\\", value, end) != -1:
+                continue
+            length = end - value - 2
+        elif any(text.find(c, value, end) != -1 for c in (" #", "\t#", ",", "[", "]", "{", "}")):
+            continue    # a comment ends it, and in a flow collection a `,` or bracket may
+        else:
+            length = end - value
+        if length > MAX_STRING:
+            raise _TooLong(_too_long(length), text.count("\n", 0, start) + 1, found["key"].strip("'\""))
+
+
+# `key: |` or `key: >-` (a block scalar's header) at a line's end; group 1 is what is before the key
+_BLOCK_HEADER = re.compile(r"^([ \t]*(?:-[ \t]+)*)" + _KEY[len(r"[ \t]*(?:-[ \t]+)*"):]
+                           + r"[ \t]+[|>][-+0-9]{0,3}[ \t]*(?:#[^\n]*)?\r?$", re.MULTILINE)
+_BLANK_LINES = re.compile(r"(?:[ ]*\r?\n)*([ ]*)")
+
+
+def _check_long_blocks(text: str) -> None:
+    """Refuse a block scalar (`key: |` and its indented lines) of over MAX_STRING characters before
+    libyaml parses it, as _check_long_lines does a one-line scalar: its lines run to the first one
+    indented no deeper than its key, and each loses the first line's indentation."""
+    for header in _BLOCK_HEADER.finditer(text):
+        start = header.end() + 1
+        column = len(header[1])
+        found = re.compile(rf"\n {{0,{column}}}(?=[^ \r\n])").search(text, start)
+        end = len(text) if found is None else found.start()
+        if end - start <= MAX_STRING:
+            continue
+        indent = len(_BLANK_LINES.match(text, start)[1])     # type: ignore[index]
+        length = end - start - (text.count("\n", start, end) + 1) * indent
+        if length > MAX_STRING:
+            raise _TooLong(_too_long(length), text.count("\n", 0, header.start()) + 1, header["key"].strip("'\""))
 
 
 def _check_expansion(root: yaml.Node, path: str, text: str) -> None:
@@ -510,14 +637,17 @@ def _scalar_value(node: yaml.Node, keypath: KeyPath, path: str, c: _Constructor)
     except yaml.YAMLError as exc:
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
                                   f"invalid value: {_error_text(exc)}")]) from exc
-    except ValueError as exc:   # an integer of over 4,300 digits (Python's own bound)
-        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
-                                  f"invalid value: {str(exc)[:120]}")]) from exc
+    except ValueError as exc:   # an integer of over 4,300 digits (Python's own bound): said in our words
+        digits = sum(map(str.isdigit, node.value)) if isinstance(node, yaml.ScalarNode) else 0
+        why = (f"an integer of {digits:,} digits, more than Python reads ({_INT_DIGITS:,}): no setting takes one; "
+               "write a smaller number, or quote it for text") if digits > _INT_DIGITS else \
+            f"invalid value: {str(exc)[:120]}"
+        raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath), why)]) from None
     if isinstance(value, int) and value.bit_length() > MAX_INT_BITS:
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),
                                   "a number of over 4,000 digits: no setting takes one; write a smaller "
                                   "number, or quote it for text")])
-    if isinstance(value, str) and c.escapes and (found := _search_not_text(value)):   # a `"\ufffe"` escape
+    if isinstance(value, str) and c.escapes and (found := _search_not_text(value, c.controls)):   # `"\ufffe"`, `"\0"`
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath), _not_text_reason(found[0]))])
     if isinstance(value, bytes):   # written out it was Python's b'...' (Ansible cannot print it either)
         raise InputError([Problem(path, node.start_mark.line + 1, dotted(keypath),

@@ -178,8 +178,10 @@ def _ini_var(state: _IniState, line: str, number: int, draft: Draft) -> None:
 
 def _text_only(key: str, value: Any, origin: Origin, draft: Draft) -> bool:
     """False (and a problem at the var) for a value no file can hold: `"\\ud800"` is a literal
-    Ansible's parser reads too, and writing it later crashed (see yamlsrc.not_text)."""
-    why = not_text({key: value})
+    Ansible's parser reads too, and writing it later crashed (see yamlsrc.not_text); a control
+    character (a raw NUL byte, `"\\x00"`) is refused here as YAML refuses it, not at the fleet key
+    that later uses the var."""
+    why = not_text({key: value}, controls=True)
     if why is not None:
         draft.problems.append(origin.problem((key,), why))
     return why is None

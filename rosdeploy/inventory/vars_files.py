@@ -4,6 +4,7 @@ from __future__ import annotations
 import errno
 import os
 import re
+import stat
 from pathlib import Path
 
 from rosdeploy import suggest
@@ -42,6 +43,9 @@ def _empty_dir(path: Path) -> bool:
 def _vars_files(folder: Path, draft: Draft) -> dict[str, Path]:
     """Entity name → its vars file or folder, chosen as Ansible's find_vars_files does."""
     if not is_dir(folder):
+        why = _not_a_folder(folder)
+        if why is not None:
+            draft.problems.append(Problem(str(folder), None, "", why))
         return {}
     candidates: dict[str, list[Path]] = {}
     for entry in _listing(folder, draft):
@@ -66,6 +70,53 @@ def _vars_files(folder: Path, draft: Draft) -> dict[str, Path]:
                                           "NAME.yaml, NAME.json; merge them", severity="warning"))
         out[name] = found[0]
     return out
+
+
+def _not_a_folder(folder: Path) -> str | None:
+    """Why `folder` (group_vars or host_vars), there but not a folder, is refused; None when it is absent.
+
+    Ansible warns and skips it; skipped, every robot would deploy without the vars it holds, and
+    nothing would name the folder (only downstream errors, or none at all)."""
+    name = folder.name
+    try:
+        info = os.lstat(folder)
+    except OSError as exc:
+        if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            return None
+        return f"cannot look at this {name} folder ({exc.strerror or exc}): fix its permissions or remove it"
+    if stat.S_ISLNK(info.st_mode):
+        target = shown(_readlink(folder))
+        if _loops(folder):
+            return f"a symlink loop (through {target}): the vars in {name} would be lost; fix the link or remove it"
+        if not folder.exists():
+            return (f"a symlink to {target}, which does not exist: the vars in {name} would be lost; "
+                    "fix the link or remove it")
+        return (f"a symlink to {target}, {_kind(folder)}, where the {name} folder belongs: its vars would be lost "
+                "(Ansible skips it); link to a folder of vars files, or remove it")
+    return (f"{_kind(folder)} where the {name} folder belongs: its vars would be lost (Ansible skips it); "
+            f"make {name} a folder of NAME.yml files, or remove it")
+
+
+def _kind(path: Path) -> str:
+    """What a path that is not a folder is, in words."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return "something that cannot be read"
+    if stat.S_ISREG(mode):
+        return "a regular file"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a folder"
+
+
+def _readlink(path: Path) -> str:
+    try:
+        return os.readlink(path)
+    except OSError:
+        return "?"
 
 
 def _listing(folder: Path, draft: Draft) -> list[Path]:

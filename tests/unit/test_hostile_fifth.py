@@ -150,12 +150,14 @@ def test_a_nul_that_comes_out_of_a_template_is_refused(capsys: pytest.CaptureFix
                                                        source: str) -> None:
     if source == "expression":
         edit(lab, set_env("{{ 'north' ~ '\\x00' ~ 'hall' }}"))
-    else:
-        (lab / "inventory" / "host_vars" / "r1.yml").write_text('site: "north\\0hall"\n')
-        (lab / "inventory" / "host_vars" / "r2.yml").write_text("site: south\n")
-        edit(lab, set_env("{{ site }}"))
-    refused_everywhere(capsys, lab, "fleet.yml:", "services.driver.environment.X: robot 'r1': this value comes "
-                                                  "out with a NUL byte")
+        refused_everywhere(capsys, lab, "fleet.yml:", "services.driver.environment.X: robot 'r1': this value comes "
+                                                      "out with a NUL byte")
+        return
+    # written as an escape in a vars file: refused where it is written, before any template reads it
+    (lab / "inventory" / "host_vars" / "r1.yml").write_text('site: "north\\0hall"\n')
+    (lab / "inventory" / "host_vars" / "r2.yml").write_text("site: south\n")
+    edit(lab, set_env("{{ site }}"))
+    refused_everywhere(capsys, lab, "host_vars/r1.yml:1: site: holds a NUL byte (U+0000)")
 
 
 # ------------------------------------------------------------------ 5. links inside --out
