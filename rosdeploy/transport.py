@@ -347,6 +347,9 @@ class SSHTransport:
                                                f"{self.options.connect_timeout:g}s (ssh.connect_timeout)") from exc
         except OSError as exc:
             raise ConnectError(self.host.name, f"unreachable: {self._where()}: {exc.strerror or exc}") from exc
+        except UnicodeError as exc:    # the resolver's IDNA codec: a name known only now (`HostName %h..x`)
+            raise ConnectError(self.host.name, f"{self._where()} is not a valid host name ({exc}): fix its "
+                                               "ansible_host, or the ssh config's HostName/ProxyJump") from exc
         return self
 
     def _open_hops(self) -> paramiko.Channel | None:

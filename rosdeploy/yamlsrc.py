@@ -149,10 +149,21 @@ class Doc:
 
 
 def dotted(keypath: KeyPath) -> str:
+    """`a.b[0]`; a key that is no string is bracketed and spelt as YAML spells it (`hosts[true]`,
+    `hosts[1.5]`: `hosts.1.5` read as a path, `[True]` as Python)."""
     out = ""
     for part in keypath:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+        if isinstance(part, str):
+            out += f".{part}" if out else part
+        else:
+            out += f"[{_yaml_spelling(part)}]"
     return out
+
+
+def _yaml_spelling(key: Any) -> str:
+    if key is None or isinstance(key, bool):
+        return {None: "null", True: "true", False: "false"}[key]
+    return str(key)
 
 
 def load(path: str | Path, text: str | None = None, duplicates: list[Problem] | None = None,

@@ -97,7 +97,7 @@ class Reader:
         except UnicodeDecodeError:
             raise VaultError([doc.problem(kp, "a !vault value is not UTF-8 text once decrypted: "
                                               "encrypt text only")]) from None
-        why = yamlsrc.not_text(plain)
+        why = yamlsrc.not_text(plain, controls=True)
         if why is not None:    # as any other value, named by its code point only
             raise VaultError([doc.problem(kp, f"this !vault value {why}")])
         return plain

@@ -12,8 +12,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from rosdeploy import suggest
 from rosdeploy.errors import Problem, shown
-from rosdeploy.fleet import (REMOTE_PATH_RE, home_problem, known_hosts_problem, normal_path, path_too_long,
-                             remote_root_too_long)
+from rosdeploy.fleet import REMOTE_PATH_RE, deploy_root_problem, home_problem, known_hosts_problem, path_too_long
 from rosdeploy.inventory.draft import Layer, Origin
 from rosdeploy.inventory.known import (ANSIBLE_VARS, FALSE, HEX4, MODE, NAME, NEAR_MISS_CUTOFF, SERIAL,
                                        SHELL_UNSAFE, SUBSYSTEM, SYMLINK, TRUE, UDEV_KEYS, UDEV_REQUIRED,
@@ -401,12 +400,9 @@ def _to_remote_root(value: Any) -> str:
     if not isinstance(value, str) or not REMOTE_PATH_RE.fullmatch(value) or ".." in value.split("/"):
         raise BadValue(f"must be an absolute path or one under ~ on the robot, without '..' or shell "
                        f"metacharacters (e.g. /opt/rosdeploy or ~/rosdeploy), got {shown(value)}")
-    if value.startswith("/") and normal_path(value) == "/":    # `/.`, `/./`: as fleet._deploy_root refuses
-        raise BadValue(f"{shown(value)} is the robot's root folder: releases need a folder of their own, "
-                       "e.g. ~/rosdeploy or /opt/rosdeploy")
-    too_long = remote_root_too_long(value)
-    if too_long:
-        raise BadValue(too_long)
+    problem = deploy_root_problem(value)     # the root, /proc, /sys, /dev, too long: as deploy_root
+    if problem:
+        raise BadValue(problem)
     return value
 
 
@@ -458,7 +454,10 @@ def _device_path(path: Any, subpath: KeyPath) -> str:
     # Written as the kernel reads it (`/dev//x`, `/dev/./x/` are /dev/x): Docker maps every device
     # under a folder given as a device, so `/dev//` was all of the robot's devices.
     parts = [part for part in text.split("/") if part not in ("", ".")]
-    if not text.startswith("/") or parts[:1] != ["dev"] or ".." in parts or len(parts) < 2:
+    if ".." in parts:
+        raise BadValue(f"{shown(text)} holds `..`: write the device's own path under /dev "
+                       "(e.g. /dev/robot/lidar)", subpath)
+    if not text.startswith("/") or parts[:1] != ["dev"] or len(parts) < 2:
         raise BadValue(f"must be a device path under /dev on the robot (e.g. /dev/robot/lidar), not /dev itself, "
                        f"got {shown(text)}", subpath)
     path = "/" + "/".join(parts)

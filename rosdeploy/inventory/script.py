@@ -212,7 +212,7 @@ def _not_text_at(value: Any, keypath: KeyPath) -> tuple[KeyPath, str] | None:
         return None
     if isinstance(value, list):
         return next((f for i, item in enumerate(value) if (f := _not_text_at(item, keypath + (i,)))), None)
-    why = not_text(value)
+    why = not_text(value, controls=True)
     return None if why is None else (keypath, why)
 
 

@@ -88,9 +88,9 @@ def _bad_value(keypath: KeyPath, value: Any, count: int) -> str | None:
         return f"more than {MAX_NODES} values: not an inventory rosdeploy will read"
     if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > MAX_INT_BITS:
         return f"an integer of {value.bit_length()} bits: at most {MAX_INT_BITS}"
-    if keypath and isinstance(keypath[-1], str) and (why := not_text(keypath[-1])) is not None:
+    if keypath and isinstance(keypath[-1], str) and (why := not_text(keypath[-1], controls=True)) is not None:
         return f"this key {why}"
-    if isinstance(value, str) and (why := not_text(value)) is not None:
+    if isinstance(value, str) and (why := not_text(value, controls=True)) is not None:
         return f"this value {why}"
     return None
 

@@ -29,3 +29,59 @@ def test_a_compose_tmpfs_elsewhere_still_renders(capsys: pytest.CaptureFixture, 
     code, text = cli(capsys, lab, "render")
     assert code == 0, text
     assert "/run/cache:size=1m" in next((lab / "out").glob("*/compose.yml")).read_text()
+
+
+@pytest.mark.parametrize("root, words", [("/proc/x", "is in /proc, the kernel's own file system"),
+                                         ("/dev", "is in /dev, the kernel's own file system"),
+                                         ("/.", "is the robot's root folder")])
+def test_a_robot_s_deploy_root_is_checked_like_the_fleet_s(capsys: pytest.CaptureFixture, lab: Path,  # noqa: F811
+                                                           root: str, words: str) -> None:
+    (lab / "inventory" / "host_vars" / "r1.yml").write_text(f"gpu: true\nrosdeploy_deploy_root: {root}\n")
+    for command in ("validate", "check", "render"):
+        code, text = cli(capsys, lab, command)
+        assert code == 2 and "host_vars/r1.yml:2: rosdeploy_deploy_root" in text and words in text, (command, text)
+    assert not (lab / "out").exists()
+
+
+def test_a_device_path_with_dotdot_is_refused_for_the_dotdot(
+        capsys: pytest.CaptureFixture, lab: Path) -> None:  # noqa: F811
+    (lab / "inventory" / "host_vars" / "r1.yml").write_text("gpu: true\ndevices: {motor: /dev/../dev/mem}\n")
+    code, text = cli(capsys, lab, "validate")
+    assert code == 2 and "'/dev/../dev/mem' holds `..`" in text and "not /dev itself" not in text, text
+
+
+def test_a_host_name_the_resolver_refuses_at_connect_is_that_robot_s_error(
+        capsys: pytest.CaptureFixture, lab: Path) -> None:  # noqa: F811
+    # `%h` expands only when connecting, so validate cannot judge it: the resolver's IDNA codec
+    # raised UnicodeError there, an internal error (exit 1) for the whole command
+    hosts = lab / "inventory" / "hosts.yml"
+    hosts.write_text(hosts.read_text().replace("ansible_host: 127.0.0.1", "ansible_port: 22"))
+    (lab / "ssh_config").write_text("Host r1\n  HostName %h..x\n")
+    (lab / "known_hosts").write_text("")
+    edit(lab, lambda d: d.update(ssh={"config": "ssh_config", "known_hosts": "known_hosts", "connect_timeout": "2s"}))
+    code, text = cli(capsys, lab, "plan", "--limit", "r1")
+    assert code == 3 and "r1..x is not a valid host name" in text, text
+
+
+@pytest.mark.parametrize("kind", ["toml", "script"])
+def test_a_control_character_in_a_toml_or_script_inventory_is_refused_at_the_var(
+        capsys: pytest.CaptureFixture, lab: Path, kind: str) -> None:  # noqa: F811
+    (lab / "inventory" / "hosts.yml").unlink()
+    if kind == "toml":
+        (lab / "inventory" / "hosts.toml").write_text(
+            '[lab.hosts]\nr1 = { ansible_host = "127.0.0.1", ros_domain_id = 1, site = "a\\u0000b" }\n'
+            'r2 = { ansible_host = "127.0.0.2", ros_domain_id = 2 }\n')
+    else:
+        script = lab / "inventory" / "dyn.py"
+        script.write_text("#!/usr/bin/env python3\nimport json\nprint(json.dumps({'lab': {'hosts': ['r1', 'r2']}, "
+                          "'_meta': {'hostvars': {'r1': {'ansible_host': '127.0.0.1', 'ros_domain_id': 1, "
+                          "'site': 'a\\x1bb'}, 'r2': {'ansible_host': '127.0.0.2', 'ros_domain_id': 2}}}}))\n")
+        script.chmod(0o755)
+    code, text = cli(capsys, lab, "validate")
+    assert code == 2 and "site" in text and ("U+0000" in text or "U+001B" in text), text
+
+
+def test_a_key_path_spells_keys_that_are_no_string_as_yaml_does() -> None:
+    from rosdeploy.yamlsrc import dotted
+    assert dotted(("hosts", True)) == "hosts[true]" and dotted(("hosts", None)) == "hosts[null]"
+    assert dotted(("hosts", 1.5)) == "hosts[1.5]" and dotted(("a", "b", 0, "c")) == "a.b[0].c"
