@@ -379,8 +379,9 @@ def template_line(template: str, rendered: str, line: int | None, breaks: re.Pat
     if len(text) < 3:     # `]`, `- `: on many lines, proof of nothing
         return None
     sources = _template_lines(template)
-    found = [i for i, source in enumerate(sources, 1) if text in source]
-    return found[0] if len(found) == 1 and sources[found[0] - 1].count(text) == 1 else None
+    # the whole line, not a part of one: `x: 1` is in `x: 10`, which wrote something else
+    found = [i for i, source in enumerate(sources, 1) if source.strip() == text]
+    return found[0] if len(found) == 1 else None
 
 
 def _content(t: Target, name: str) -> str:
@@ -1052,8 +1053,13 @@ def _value_refusals(written: str, values: dict) -> tuple[tuple[tuple, str], ...]
     if found is None:
         from rosdeploy.fleet import _check_compose_formats, _check_compose_values
         said = _Said()
-        _check_compose_values(cast(Any, said), (), values)
-        _check_compose_formats(cast(Any, said), (), values)
+        try:
+            _check_compose_values(cast(Any, said), (), values)
+            _check_compose_formats(cast(Any, said), (), values)
+        except (AttributeError, TypeError, KeyError, ValueError):
+            # a shape the fleet file's schema check refuses before these run (`blkio_config: {1: []}`):
+            # here _schema_problems names it; these value checks assume the schema's shapes
+            said.said.clear()
         if len(_REFUSALS) > 4096:
             _REFUSALS.clear()
         found = _REFUSALS[written] = tuple(said.said)

@@ -1687,8 +1687,8 @@ def _check_compose_values(r: Reader, where: KeyPath, extra: dict) -> None:
             r.error(where + (key,), f"{shown(value)} is none of {names} (Docker's names are lower case)")
     storage = extra.get("storage_opt")
     size = storage.get("size") if isinstance(storage, dict) else None
-    if isinstance(size, str) and (size != size.strip() or not _size_ok(size)):
-        # the storage driver reads it with go-units' RAMInBytes at create: "invalid size"
+    if isinstance(size, str) and not _RATE.fullmatch(size):
+        # the storage driver reads it with go-units' RAMInBytes at create (`20GiB`, `10 GB`): "invalid size"
         r.error(where + ("storage_opt", "size"), f"{shown(size)} is not a size in bytes, e.g. 10g (Docker refuses it)")
     stop = extra.get("stop_signal")
     if isinstance(stop, str) and not _is_signal(stop):

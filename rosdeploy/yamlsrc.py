@@ -62,13 +62,12 @@ _INT_TAG = "tag:yaml.org,2002:int"
 _NOT_TEXT = re.compile("[\ud800-\udfff\ufdd0-\ufdef\ufffe\uffff"
                        + "".join(chr(plane << 16 | 0xfffe) + chr(plane << 16 | 0xffff) for plane in range(1, 17))
                        + "]")
-# Control characters YAML refuses written raw in a file (PyYAML's reader; a tab and the line breaks
-# are allowed). An escape (`"a\0b"` in YAML, `"\u0000"` in JSON, a raw byte or `"\x00"` in INI) builds one
-# all the same: refused at its file:line too, as the raw one is, rather than at whatever fleet key
-# later uses it (a NUL reaches no environment variable, command line or file name intact).
-_CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x84\x86-\x9f]")
-_CONTROL_NAMES = {0x07: "BEL", 0x08: "backspace", 0x0b: "vertical tab", 0x0c: "form feed",
-                  0x1b: "ESC", 0x7f: "DEL"}
+# A NUL written as an escape (`"a\0b"` in YAML, `"\u0000"` in JSON, a raw byte or `"\x00"` in INI):
+# no environment variable, command line or file name can hold one, so it is refused at its
+# file:line, as a lone surrogate is, rather than at whatever fleet key later uses it. Other control
+# characters stay (`"\e[1;32m"` in a motd, `"D:\build"`): Ansible takes them, a var rosdeploy never
+# reads must not fail the inventory, and where one lands (an environment value) it is refused there.
+_CONTROL = re.compile("\x00")
 # What json.dumps writes for a character past U+FFFF: an escaped surrogate pair, which JSON (and
 # Ansible, reading .json with a JSON parser) joins into one character, and libyaml refuses.
 _JSON_PAIR = re.compile(r"(?<!\\)((?:\\\\)*)\\u([dD][89abAB][0-9a-fA-F]{2})\\u([dD][c-fC-F][0-9a-fA-F]{2})")
@@ -303,11 +302,8 @@ def _search_not_text(text: str, controls: bool = False) -> re.Match[str] | None:
 def _not_text_reason(char: str) -> str:
     code = f"U+{ord(char):04X}"
     if char == "\0":     # "NUL byte", as the checks of paths and environment values say
-        return f"holds a NUL byte ({code}), which a YAML file may not hold (raw or as an escape): remove it"
-    if _CONTROL.fullmatch(char):
-        name = _CONTROL_NAMES.get(ord(char))
-        return (f"holds the control character {code}{f' ({name})' if name else ''}, which a YAML file may not "
-                "hold (raw or as an escape): remove it")
+        return (f"holds a NUL byte ({code}), which no environment variable, command line or file name can "
+                "hold: remove it")
     if 0xD800 <= ord(char) <= 0xDFFF:
         return (f"holds a lone surrogate ({code}, half of a UTF-16 pair): not a character, so no file can hold "
                 "it; write the character itself (a pair such as \\ud83d\\ude00 in JSON is fine)")
@@ -407,14 +403,14 @@ def _check_depth(text: str) -> None:
         return
     if len(text) > MAX_STRING:
         _check_long_lines(text)
-        _check_long_blocks(text)
     depth = count = 0
     for event in yaml.parse(text, Loader=_Composer):
         if isinstance(event, yaml.NodeEvent):     # a scalar, an alias or a collection's start
             count += 1
             if count > MAX_NODES:
                 _refuse_at(event, f"the document holds over {MAX_NODES} values: {_TOO_MANY_FIX}")
-            if isinstance(event, yaml.ScalarEvent) and len(event.value) > MAX_STRING:
+            # a `!vault` scalar is ciphertext, about four times its secret: not the value's length
+            if isinstance(event, yaml.ScalarEvent) and len(event.value) > MAX_STRING and event.tag != "!vault":
                 line = cast(yaml.Mark, event.start_mark).line
                 raise _TooLong(_too_long(len(event.value)), line + 1, _key_on(_line_of(text, line)))
         if isinstance(event, yaml.CollectionStartEvent):
@@ -493,29 +489,6 @@ def _check_long_lines(text: str) -> None:
             length = end - value
         if length > MAX_STRING:
             raise _TooLong(_too_long(length), text.count("\n", 0, start) + 1, found["key"].strip("'\""))
-
-
-# `key: |` or `key: >-` (a block scalar's header) at a line's end; group 1 is what is before the key
-_BLOCK_HEADER = re.compile(r"^([ \t]*(?:-[ \t]+)*)" + _KEY[len(r"[ \t]*(?:-[ \t]+)*"):]
-                           + r"[ \t]+[|>][-+0-9]{0,3}[ \t]*(?:#[^\n]*)?\r?$", re.MULTILINE)
-_BLANK_LINES = re.compile(r"(?:[ ]*\r?\n)*([ ]*)")
-
-
-def _check_long_blocks(text: str) -> None:
-    """Refuse a block scalar (`key: |` and its indented lines) of over MAX_STRING characters before
-    libyaml parses it, as _check_long_lines does a one-line scalar: its lines run to the first one
-    indented no deeper than its key, and each loses the first line's indentation."""
-    for header in _BLOCK_HEADER.finditer(text):
-        start = header.end() + 1
-        column = len(header[1])
-        found = re.compile(rf"\n {{0,{column}}}(?=[^ \r\n])").search(text, start)
-        end = len(text) if found is None else found.start()
-        if end - start <= MAX_STRING:
-            continue
-        indent = len(_BLANK_LINES.match(text, start)[1])     # type: ignore[index]
-        length = end - start - (text.count("\n", start, end) + 1) * indent
-        if length > MAX_STRING:
-            raise _TooLong(_too_long(length), text.count("\n", 0, header.start()) + 1, header["key"].strip("'\""))
 
 
 def _check_expansion(root: yaml.Node, path: str, text: str) -> None:

@@ -206,6 +206,9 @@ def _parse_yaml_or_ini(path: Path, read: tuple[str, bool], reader: Reader, draft
     if origin is not None and (origin.doc.data is None or isinstance(origin.doc.data, dict)):
         parse_yaml(origin, draft)
         return
+    if origin is None and not any(p.message.startswith(_SYNTAX) for p in tried):
+        draft.problems.extend(tried)    # YAML that parsed, with a value it refuses: no INI reading of it
+        return
     del draft.warnings[warned:]   # duplicate keys or octal numbers of a reading that was dropped
     if origin is not None:
         tried.append(origin.doc.problem((), f"{_kind(path)} that is not a mapping: an inventory is a mapping of "
@@ -220,6 +223,10 @@ def _parse_yaml_or_ini(path: Path, read: tuple[str, bool], reader: Reader, draft
                                           f"Ansible does; name it {path.stem}.ini", severity="warning"))
         return
     draft.problems[before:] = _both_failed(path, draft.problems[before:], tried[0], read[0])
+
+
+# How yamlsrc.load words a document it could not parse (then Ansible's next plugin, INI, is tried)
+_SYNTAX = ("invalid YAML", "invalid JSON")
 
 
 def _kind(path: Path) -> str:

@@ -88,6 +88,9 @@ class Draft:
         self.hosts: dict[str, HostDraft] = {}
         self.problems: list[Problem] = []
         self.warnings: list[Problem] = []
+        # group names Ansible warns about, each once: risky ones warned at their first mention, the
+        # plain ones (`site-north`, `2nd_floor`) in one warning for the inventory, as Ansible's one line
+        self.odd_groups: dict[str, Origin] = {}
         self.group("all", root)
         self.group("ungrouped", root)
 

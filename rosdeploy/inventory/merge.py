@@ -10,6 +10,7 @@ from typing import Any, Callable, Iterable, Iterator
 from rosdeploy.errors import Problem, shown
 from rosdeploy.inventory.draft import Draft, GroupDraft, HostDraft, Layer, Origin, split_where
 from rosdeploy.inventory.graph import Graph
+from rosdeploy.inventory.ranges import plain_odd_groups_warning
 from rosdeploy.inventory.hostvars import CONNECTION, PREFIX, BadValue, check_layer, connection_ignored, host_fields
 from rosdeploy.inventory.model import Group, Inventory
 from rosdeploy.inventory.templating import HostVars, TemplateFailed, raw_vars
@@ -44,6 +45,9 @@ def assemble(draft: Draft, graph: Graph, root: Path, base: Path) -> Inventory:
         draft.problems.append(Problem(str(base), None, "", "the inventory defines no hosts: add robots "
                                                            "under a group's hosts:"))
     groups = {name: _group(group, inline[name], ordered[name], graph) for name, group in draft.groups.items()}
+    plain = plain_odd_groups_warning(draft)
+    if plain is not None:
+        draft.warnings.append(plain)
     return Inventory(str(root), frozen_map(hosts), frozen_map(groups), _folded(draft.warnings))
 
 

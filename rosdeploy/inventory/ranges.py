@@ -8,7 +8,7 @@ import unicodedata
 import weakref
 from typing import Any
 
-from rosdeploy.errors import shown
+from rosdeploy.errors import Problem, shown
 from rosdeploy.inventory.draft import Draft, Origin, make_layer
 from rosdeploy.inventory.known import NAME
 
@@ -167,8 +167,34 @@ def _valid_group(name: str, origin: Origin, draft: Draft) -> bool:
                                                  "'_', '-' and '.' (other characters clash with patterns "
                                                  "and shells)"))
         return False
-    draft.warnings.append(origin.problem((), _odd_group(name), severity="warning"))
+    if name not in draft.odd_groups:
+        draft.odd_groups[name] = origin
+        if _risky(name):
+            draft.warnings.append(origin.problem((), _odd_group(name), severity="warning"))
     return True
+
+
+def _risky(name: str) -> bool:
+    """A group name a pattern, a shell or a command line reads otherwise (its own warning)."""
+    return name[0] in "-." or bool(_PATTERN_CHARS & set(name))
+
+
+def plain_odd_groups_warning(draft: Draft) -> Problem | None:
+    """One warning for the group names Ansible warns about that nothing misreads (`site-north`,
+    `2nd_floor`), at the first one: Ansible prints one line for them all, and a fleet with many
+    such groups (kolla's 121) must not get a page of warnings on every command."""
+    plain = [(name, origin) for name, origin in draft.odd_groups.items() if not _risky(name)]
+    if not plain:
+        return None
+    name, origin = plain[0]
+    if len(plain) == 1:
+        return origin.problem((), _odd_group(name), severity="warning")
+    more = f" (and {len(plain) - 5} more)" if len(plain) > 5 else ""
+    shown_names = ", ".join(shown(n) for n, _ in plain[:5]) + more
+    return origin.problem((), f"{len(plain)} group names hold characters Ansible warns about: {shown_names}: "
+                              "Ansible warns \"Invalid characters were found in group names\" (its group names are "
+                              "letters, digits and '_', not starting with a digit) and keeps them, as rosdeploy "
+                              "does; rename them (e.g. '-' and '.' to '_') to silence this", severity="warning")
 
 
 def _odd_group(name: str) -> str:
@@ -182,7 +208,7 @@ def _odd_group(name: str) -> str:
     odd = sorted(set(_NOT_WORD.findall(name[1:] if name[0] == "-" else name)))
     if odd:
         causes.append("holds " + ", ".join(shown(c) for c in odd))
-    risky = name[0] in "-." or bool(_PATTERN_CHARS & set(name))
+    risky = _risky(name)
     better = _NOT_WORD.sub("_", name)
     better = "_" + better if better[0].isdigit() else better
     advice = ("patterns and shells may read it differently: rename it" if risky else
