@@ -587,12 +587,12 @@ def host_name_problem(host: str) -> str | None:
     empty label, one over 63 characters, or `\x85` with a UnicodeError (not an OSError): it passed
     validate and stopped `plan` with an internal error. A `%h`-style token is known at connect time only."""
     host = host.strip()
-    if "%" in host and not _ip_address(host):
+    if "%" in host and not is_ip_address(host):
         return None
     if not host.isprintable():
         bad = ", ".join(sorted({repr(c) for c in host if not c.isprintable()}))
         return f"{shown(host, 40)} holds {bad}: give a host name or IP address"
-    if _ip_address(host):
+    if is_ip_address(host):
         return None
     try:
         host.encode("idna")
@@ -602,7 +602,8 @@ def host_name_problem(host: str) -> str | None:
     return None
 
 
-def _ip_address(text: str) -> bool:
+def is_ip_address(text: str) -> bool:
+    """An IPv4 or IPv6 address (an IPv6 `%zone` included), as Python's ipaddress reads one."""
     try:
         ipaddress.ip_address(text)
         return True

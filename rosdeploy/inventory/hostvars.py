@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import functools
-import ipaddress
 import os
 import re
 import stat
@@ -12,7 +11,8 @@ from typing import Any, Callable, Iterable, Mapping
 
 from rosdeploy import suggest
 from rosdeploy.errors import Problem, shown
-from rosdeploy.fleet import REMOTE_PATH_RE, deploy_root_problem, home_problem, known_hosts_problem, path_too_long
+from rosdeploy.fleet import (REMOTE_PATH_RE, deploy_root_problem, home_problem, is_ip_address, known_hosts_problem,
+                             path_too_long)
 from rosdeploy.inventory.draft import Layer, Origin
 from rosdeploy.inventory.known import (ANSIBLE_VARS, FALSE, HEX4, MODE, NAME, NEAR_MISS_CUTOFF, SERIAL,
                                        SHELL_UNSAFE, SUBSYSTEM, SYMLINK, TRUE, UDEV_KEYS, UDEV_REQUIRED,
@@ -294,8 +294,8 @@ def _to_address(value: Any) -> str:
 def _no_host_name_characters(address: str) -> str | None:
     """Why a name holds characters no resolver takes (`a,b`, `a%b`, `a=b`, Arabic-Indic digits), or None.
     The idna codec passes them; a known_hosts line reads `a,b` as two names. An IP address (with
-    an IPv6 `%zone`) is checked by _is_ip; non-ASCII letters are IDNA names (bücher.example)."""
-    if _is_ip(address):
+    an IPv6 `%zone`) is checked by is_ip_address; non-ASCII letters are IDNA names (bücher.example)."""
+    if is_ip_address(address):
         return None
     bad = sorted({c for c in address if not _host_name_character(c)})
     if not bad:
@@ -315,7 +315,7 @@ def _host_name_character(c: str) -> bool:
 def _not_a_host_name(address: str) -> str | None:
     """Why a name the resolver would refuse (an empty label, one over 63 characters) is no host name.
     It passed validate and stopped `status` with an internal UnicodeError from the idna codec."""
-    if _is_ip(address):
+    if is_ip_address(address):
         return None
     try:
         address.encode("idna")
@@ -331,17 +331,9 @@ def _not_an_address(address: str) -> str | None:
         return "is a URL or a path, not an address: give the host name or IP address alone (the port in ansible_port)"
     if "@" in address:
         return "holds a user (user@host): give the host alone, and the user in ansible_user"
-    if ":" in address and not _is_ip(address):
+    if ":" in address and not is_ip_address(address):
         return "is not an IPv6 address, and a port goes in ansible_port: give the host name or IP address alone"
     return None
-
-
-def _is_ip(text: str) -> bool:
-    try:
-        ipaddress.ip_address(text)
-        return True
-    except ValueError:
-        return False
 
 
 MAX_USER = 256    # far past Linux's 32 (useradd) and a directory service's names; a bound for the paths built from it
